@@ -1,0 +1,102 @@
+"""Build the EnergyModel a scenario describes (the reference terms of SPEC §7 + [model])."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from orange_plan.errors import ScenarioError, close_match_hint
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.terms import TERMS, Term, surface_rolling_term
+from orange_plan.scenario import DEFAULT_REGEN_EFFICIENCY
+
+REFERENCE_COEFFICIENTS = (
+    "ancillary_W", "sensor_W_per_Hz", "hover_W", "rolling_kg", "drag_kg_per_m", "grade_kg",
+    "turn_J_per_rad",
+)
+
+
+def model_coefficient_names(extra_terms: Iterable[str]) -> set[str]:
+    """Coefficient names a scenario's [model] table may set (surface ones by prefix)."""
+    names = set(REFERENCE_COEFFICIENTS)
+    for t in extra_terms:
+        if t in TERMS:
+            names.update(TERMS[t].coefficients)
+    return names
+
+
+def reference_coefficients(scenario) -> dict[str, float]:
+    """Lumped coefficients of the reference model from a scenario's physical values.
+
+    ``ancillary_W = (s0 + compute + comm)/(1 - eta_4)``, ``sensor_W_per_Hz = s1/(1 - eta_4)``,
+    ``rolling_kg = grade_kg = inertia_kg = m/Omega``, ``drag_kg_per_m = c/Omega``.
+    """
+    anc, robot, omega = scenario.ancillary, scenario.robot, scenario.omega
+    eta4 = scenario.losses.ancillary
+    return {
+        "ancillary_W": (anc.s0_W + anc.compute_W + anc.comm_W) / (1.0 - eta4),
+        "sensor_W_per_Hz": anc.s1_W_per_Hz / (1.0 - eta4),
+        "hover_W": robot.hover_W,
+        "rolling_kg": robot.mass_kg / omega,
+        "drag_kg_per_m": robot.drag_coeff_kg_per_m / omega,
+        "grade_kg": robot.mass_kg / omega,
+        "inertia_kg": robot.mass_kg / omega,
+        "turn_J_per_rad": robot.turn_coeff_W_s_per_rad,
+        "regen_efficiency": DEFAULT_REGEN_EFFICIENCY,
+    }
+
+
+def reference_term_ids(scenario) -> list[str]:
+    """Terms of the reference model that are switched on for this scenario (absent = off)."""
+    robot, anc = scenario.robot, scenario.ancillary
+    ids = ["ancillary"]
+    if anc.s1_W_per_Hz > 0:
+        ids.append("sensor_rate")
+    if robot.hover_W > 0:
+        ids.append("hover")
+    if robot.kind == "ground" or robot.crr > 0:
+        ids.append("rolling")
+    if robot.drag_coeff_kg_per_m > 0:
+        ids.append("aero_drag")
+    ids.append("grade")
+    if robot.turn_coeff_W_s_per_rad > 0:
+        ids.append("turning")
+    return ids
+
+
+def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -> EnergyModel:
+    """The scenario's EnergyModel: reference terms, then [model] extras, in order.
+
+    Parameters
+    ----------
+    scenario : a loaded Scenario
+    surface_names : the map's surface names, for ``surface_rolling``
+    extra_terms : override of ``scenario.model.terms``
+
+    Notes
+    -----
+    The covariance is diagonal: ``model.stderr`` entries where given, else
+    ``prior_relative_stderr`` x |value| (an a priori uncertainty for uncalibrated values).
+    """
+    spec = scenario.model
+    extras = list(spec.terms if extra_terms is None else extra_terms)
+    ids = reference_term_ids(scenario) + [t for t in extras if t != "surface_rolling"]
+    terms: list[Term] = [TERMS[t] for t in ids]
+    if "surface_rolling" in extras and surface_names:
+        terms.insert(ids.index("rolling") + 1 if "rolling" in ids else 1,
+                     surface_rolling_term(tuple(surface_names)))
+    defaults = reference_coefficients(scenario)
+    theta = {}
+    for term in terms:
+        for name in term.coefficients:
+            fallback = defaults["rolling_kg"] if name.startswith("rolling_kg_") else defaults[name]
+            theta[name] = spec.coefficients.get(name, fallback)
+    unknown = [n for n in spec.stderr if n not in theta]
+    if unknown:
+        raise ScenarioError(
+            f"{scenario.path}: model.stderr names unknown coefficient '{unknown[0]}'"
+            + close_match_hint(unknown[0], theta)
+        )
+    sd = [spec.stderr.get(n, spec.prior_relative_stderr * abs(v)) for n, v in theta.items()]
+    return EnergyModel(terms, theta, np.diag(np.square(sd)), omega=scenario.omega)

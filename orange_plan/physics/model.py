@@ -1,0 +1,234 @@
+"""EnergyModel: an ordered set of physics terms with coefficients and their covariance."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from orange_plan.errors import InputError
+from orange_plan.physics import ops
+from orange_plan.physics.state import MotionState
+from orange_plan.physics.terms import Term
+
+
+@dataclass(frozen=True)
+class SegmentEnergy:
+    """Battery-side energy of straight steps (arrays broadcast like the inputs).
+
+    Attributes
+    ----------
+    ancillary_J : power terms x mission time (stops included through the duty cycle) [J]
+    traversal_J : ``max(0, F) L`` minus any regenerated energy [J] (Eq. 2, 7)
+    turning_J : turning losses at the step's start vertex [J]
+    moving_time_s : ``L / v`` [s]
+    mission_time_s : ``L / (v D)`` [s]
+    """
+
+    ancillary_J: object
+    traversal_J: object
+    turning_J: object
+    moving_time_s: object
+    mission_time_s: object
+
+    @property
+    def total_J(self):
+        """Ancillary + traversal + turning [J]."""
+        return self.ancillary_J + self.traversal_J + self.turning_J
+
+
+class EnergyModel:
+    """Battery power as an ordered sum of physics terms (DESIGN.md "the one idea").
+
+    Parameters
+    ----------
+    terms : the terms, in order; a switched-off term is simply absent
+    theta : coefficient values by name (every coefficient of every term)
+    cov : covariance of the coefficients in ``names`` order; default zeros
+    omega : manoeuvring efficiency Omega (needed by ``regen`` only) [-]
+
+    Notes
+    -----
+    Time domain: ``P = sum_power theta phi + max(0, F) v - r Omega^2 max(0, -F) v
+    + sum_rate theta |yaw rate|`` with ``F = sum_force theta phi`` the lumped traction force.
+    Path domain (SPEC §7): a step of length L at speed v costs ``P_power L / (v D)
+    + max(0, F) L + theta_turn |heading change|``.
+    """
+
+    def __init__(
+        self,
+        terms: Sequence[Term],
+        theta: Mapping[str, float],
+        cov: np.ndarray | None = None,
+        omega: float = 1.0,
+    ):
+        ids = [t.id for t in terms]
+        if len(set(ids)) != len(ids):
+            raise InputError(f"EnergyModel terms repeat an id: {ids}")
+        self.terms: tuple[Term, ...] = tuple(terms)
+        self.names: tuple[str, ...] = tuple(c for t in terms for c in t.coefficients)
+        missing = [n for n in self.names if n not in theta]
+        if missing:
+            raise InputError(f"EnergyModel: no value for coefficient(s) {missing}")
+        extra = sorted(set(theta) - set(self.names))
+        if extra:
+            raise InputError(f"EnergyModel: coefficient(s) {extra} belong to no term")
+        self.theta = np.array([float(theta[n]) for n in self.names])
+        if not np.all(np.isfinite(self.theta)):
+            raise InputError("EnergyModel: coefficients must be finite")
+        k = len(self.names)
+        self.cov = np.zeros((k, k)) if cov is None else np.asarray(cov, dtype=float)
+        if self.cov.shape != (k, k):
+            raise InputError(f"EnergyModel: cov has shape {self.cov.shape}, expected {(k, k)}")
+        if not (0.0 < omega <= 1.0):
+            raise InputError(f"EnergyModel: omega = {omega!r} must be in (0, 1]")
+        self.omega = float(omega)
+
+    # --- bookkeeping ------------------------------------------------------------------
+    @property
+    def term_ids(self) -> tuple[str, ...]:
+        return tuple(t.id for t in self.terms)
+
+    def has(self, term_id: str) -> bool:
+        return term_id in self.term_ids
+
+    def coefficient(self, name: str) -> float:
+        """Value of one coefficient by name."""
+        try:
+            return float(self.theta[self.names.index(name)])
+        except ValueError:
+            raise InputError(f"no coefficient named {name!r}; have {list(self.names)}") from None
+
+    def stderr(self) -> dict[str, float]:
+        """Standard error of each coefficient, by name."""
+        return dict(zip(self.names, np.sqrt(np.clip(np.diag(self.cov), 0.0, None))))
+
+    def as_dict(self) -> dict[str, float]:
+        return dict(zip(self.names, self.theta.tolist()))
+
+    def with_theta(self, theta: Mapping[str, float], cov: np.ndarray | None = None) -> EnergyModel:
+        """The same terms with new coefficients (and covariance, if given)."""
+        merged = {**self.as_dict(), **theta}
+        return EnergyModel(self.terms, merged, self.cov if cov is None else cov, self.omega)
+
+    def with_terms(self, terms: Sequence[Term], theta: Mapping[str, float]) -> EnergyModel:
+        """A model with other terms; known coefficients keep their values and variances."""
+        merged = {**{n: v for n, v in self.as_dict().items()}, **theta}
+        names = [c for t in terms for c in t.coefficients]
+        model = EnergyModel(terms, {n: merged[n] for n in names}, None, self.omega)
+        old = {n: i for i, n in enumerate(self.names)}
+        for i, a in enumerate(model.names):
+            for j, b in enumerate(model.names):
+                if a in old and b in old:
+                    model.cov[i, j] = self.cov[old[a], old[b]]
+        return model
+
+    # --- evaluation ---------------------------------------------------------------------
+    def _group_sum(self, state: MotionState, group: str, theta=None):
+        theta = self.theta if theta is None else theta
+        total, i = 0.0, 0
+        for term in self.terms:
+            n = len(term.coefficients)
+            if term.group == group:
+                for k, phi in enumerate(term.features(state)):
+                    total = total + theta[i + k] * phi
+            i += n
+        return total
+
+    def _regen_fraction(self, theta=None) -> float:
+        if not self.has("regen"):
+            return 0.0
+        theta = self.theta if theta is None else theta
+        eff = theta[self.names.index("regen_efficiency")]
+        # The lumped force is F_mech / Omega; energy flowing back passes motor and drivetrain
+        # in reverse, hence Omega^2 between lumped negative work and battery energy.
+        return eff * self.omega**2
+
+    def ancillary_power_W(self, state: MotionState, theta=None):
+        """Sum of the ``power`` terms at ``state`` [W] (P_anc, Eq. 10)."""
+        return self._group_sum(state, "power", theta)
+
+    def traction_force_N(self, state: MotionState, theta=None):
+        """Lumped net traction force ``F / Omega`` [N] (before the no-recovery clip)."""
+        return self._group_sum(state, "force", theta)
+
+    def traversal_power_W(self, state: MotionState, theta=None):
+        """Battery power for traction: ``max(0,F) v`` minus regeneration [W]."""
+        force = self.traction_force_N(state, theta)
+        positive = ops.fmax(force, 0.0) * state.speed_mps
+        regen = self._regen_fraction(theta)
+        if regen:
+            positive = positive - regen * ops.fmax(-force, 0.0) * state.speed_mps
+        return positive
+
+    def power_W(self, state: MotionState, theta=None):
+        """Battery power at ``state`` in the time domain [W]."""
+        return (
+            self.ancillary_power_W(state, theta)
+            + self.traversal_power_W(state, theta)
+            + self._group_sum(state, "rate", theta)
+        )
+
+    def segment_energy(
+        self,
+        state: MotionState,
+        length_m,
+        duty_cycle,
+        heading_change_rad=0.0,
+        theta=None,
+    ) -> SegmentEnergy:
+        """Energy of straight steps of 3-D length ``length_m`` at ``state`` (SPEC §7).
+
+        Parameters
+        ----------
+        state : motion state per step (speed, grade, direction, wind, crr...)
+        length_m : 3-D step length L [m]
+        duty_cycle : D, fraction of mission time spent moving (0, 1] [-]
+        heading_change_rad : heading change at the step's start vertex [rad]
+
+        Returns
+        -------
+        SegmentEnergy
+        """
+        moving_time_s = length_m / state.speed_mps
+        mission_time_s = moving_time_s / duty_cycle
+        ancillary_J = self.ancillary_power_W(state, theta) * mission_time_s
+        traversal_J = self.traversal_power_W(state, theta) * moving_time_s
+        turning_J = self.turning_energy_J(heading_change_rad, theta)
+        return SegmentEnergy(ancillary_J, traversal_J, turning_J, moving_time_s, mission_time_s)
+
+    def turning_energy_J(self, heading_change_rad, theta=None):
+        """Energy of the ``rate`` terms for heading changes [J] (0 without such terms)."""
+        state = MotionState(speed_mps=0.0 * heading_change_rad, yaw_rate_radps=heading_change_rad)
+        return self._group_sum(state, "rate", theta) + 0.0 * heading_change_rad
+
+    # --- linearisation (calibration, reserve sizing) -------------------------------------
+    def power_jacobian(self, state: MotionState) -> np.ndarray:
+        """d power / d theta at numeric ``state``, shape ``(n_samples, n_coefficients)``.
+
+        The no-recovery clip is applied as a mask at the current coefficients; ``regen``'s
+        column is the (negative) recovered power per unit efficiency.
+        """
+        force = np.asarray(self.traction_force_N(state), dtype=float)
+        speed = np.asarray(state.speed_mps, dtype=float)
+        shape = np.broadcast(force, speed).shape
+        moving_on = np.broadcast_to(force > 0, shape)
+        columns = []
+        for term in self.terms:
+            phis = [np.broadcast_to(np.asarray(p, dtype=float), shape) for p in term.features(state)]
+            if term.group == "power":
+                columns += phis
+            elif term.group == "rate":
+                columns += phis
+            elif term.group == "force":
+                regen = self._regen_fraction()
+                columns += [np.where(moving_on, p * speed, -regen * p * speed) for p in phis]
+            else:  # regen: d/d(eff) of -eff Omega^2 max(0, -F) v
+                columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * speed)
+        return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
+
+    def energy_variance_J2(self, gradient: np.ndarray) -> np.ndarray:
+        """Variance ``g' Cov g`` of energies with gradients ``gradient`` (..., k) [J^2]."""
+        g = np.asarray(gradient, dtype=float)
+        return np.einsum("...i,ij,...j->...", g, self.cov, g)

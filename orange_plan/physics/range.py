@@ -1,0 +1,225 @@
+"""Operational range: simplified ORangE (Eq. 6) and generalised offline ORangE (Eq. 11)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from orange_plan.errors import InputError
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
+from orange_plan.physics.state import MotionState
+
+
+@dataclass(frozen=True)
+class EnergyBreakdown:
+    """Where the battery's energy goes over a full-range mission [J].
+
+    ``available_J = ancillary_J + traversal_J``; the loss entries say how much of those
+    (or, for eta_1, of the decayed capacity) each loss group takes.
+    """
+
+    rated_J: float
+    capacity_J: float
+    decay_J: float
+    available_J: float
+    ancillary_J: float
+    traversal_J: float
+    mechanical_work_J: float
+    battery_loss_eta1_J: float
+    motor_loss_eta2_J: float
+    mechanical_loss_eta3_J: float
+    ancillary_loss_eta4_J: float
+
+
+@dataclass(frozen=True)
+class RangeResult:
+    """Operational range at the best speed.
+
+    Attributes
+    ----------
+    d_max_m : maximum distance on one discharge [m]
+    v_opt_mps : speed in [v_min, v_max] that maximises it [m/s]
+    energy_per_m_J : battery energy per metre at v_opt [J/m]
+    mission_time_s : mission time to cover d_max, stops included [s]
+    method : "simplified (Eq. 6)" or "generalised offline (Eq. 11)"
+    """
+
+    d_max_m: float
+    v_opt_mps: float
+    energy_per_m_J: float
+    mission_time_s: float
+    method: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def best_speed(cost_per_m, v_min_mps: float, v_max_mps: float) -> float:
+    """Speed in [v_min, v_max] minimising a per-metre energy cost (bounded Brent + ends) [m/s]."""
+    if v_min_mps == v_max_mps:
+        return float(v_min_mps)
+    candidates = [v_min_mps, v_max_mps]
+    res = minimize_scalar(cost_per_m, bounds=(v_min_mps, v_max_mps), method="bounded",
+                          options={"xatol": 1e-6})
+    if res.success:
+        candidates.append(float(res.x))
+    return float(min(candidates, key=cost_per_m))
+
+
+def flat_state(speed_mps, crr: float, sensor_rate_Hz: float) -> MotionState:
+    """Level, windless, straight motion on ground of rolling coefficient ``crr``."""
+    return MotionState(speed_mps=speed_mps, crr=crr, sensor_rate_Hz=sensor_rate_Hz)
+
+
+def simplified_range(scenario, model: EnergyModel, crr: float) -> RangeResult:
+    """Simplified ORangE on flat ground (the paper's Eq. 6, SPEC §7).
+
+    ``d_max = E_avail / (P_anc / (v D) + (crr m g + c v^2) / Omega)`` at the speed ``v_opt``
+    in ``[v_min, v_max]`` that maximises it.
+    """
+    duty = scenario.mission.duty_cycle
+    rate = scenario.ancillary.sensor_rate_Hz
+
+    def cost_per_m(v):
+        return float(model.segment_energy(flat_state(v, crr, rate), 1.0, duty).total_J)
+
+    v = best_speed(cost_per_m, scenario.robot.v_min_mps, scenario.robot.v_max_mps)
+    cost = cost_per_m(v)
+    if cost <= 0:
+        raise InputError("the model gives no energy cost per metre; range is unbounded")
+    d = scenario.battery.usable_J / cost
+    return RangeResult(d, v, cost, d / (v * duty), "simplified (Eq. 6)")
+
+
+def breakdown(scenario, model: EnergyModel, result: RangeResult, crr: float) -> EnergyBreakdown:
+    """Split the available energy of a full-range flat mission into its consumers and losses."""
+    bat, losses = scenario.battery, scenario.losses
+    duty, rate = scenario.mission.duty_cycle, scenario.ancillary.sensor_rate_Hz
+    state = flat_state(result.v_opt_mps, crr, rate)
+    seg = model.segment_energy(state, result.d_max_m, duty)
+    ancillary_J, traversal_J = float(seg.ancillary_J), float(seg.traversal_J + seg.turning_J)
+    hover_J = scenario.robot.hover_W * float(seg.mission_time_s) if model.has("hover") else 0.0
+    return EnergyBreakdown(
+        rated_J=bat.rated_energy_J,
+        capacity_J=bat.capacity_J,
+        decay_J=bat.rated_energy_J - bat.capacity_J,
+        available_J=bat.usable_J,
+        ancillary_J=ancillary_J,
+        traversal_J=traversal_J,
+        mechanical_work_J=traversal_J * losses.omega,
+        battery_loss_eta1_J=bat.storage_loss_J,
+        motor_loss_eta2_J=traversal_J * losses.motor,
+        mechanical_loss_eta3_J=traversal_J * (1 - losses.motor) * losses.mechanical,
+        ancillary_loss_eta4_J=(ancillary_J - hover_J) * losses.ancillary,
+    )
+
+
+def radial_probe_paths(world, n_headings: int = 16) -> list[np.ndarray]:
+    """A priori mission sample: out-and-back straight rays from home in evenly spread headings.
+
+    Each ray runs to the boundary or the first keep-out zone (whatever the map allows), so
+    grades, surfaces and wind in every direction enter the estimate (Eq. 11's path integral).
+    """
+    from shapely.geometry import LineString, Point
+
+    hx, hy = world.home_xy_m
+    free = world.map.free_space
+    reach = np.hypot(*np.subtract(world.map.boundary.bounds[2:], world.map.boundary.bounds[:2]))
+    paths = []
+    for ang in np.linspace(0, 2 * np.pi, n_headings, endpoint=False):
+        ray = LineString([(hx, hy), (hx + reach * np.cos(ang), hy + reach * np.sin(ang))])
+        part = ray.intersection(free)
+        pieces = getattr(part, "geoms", [part])
+        home = Point(hx, hy)
+        first = next((g for g in pieces if g.geom_type == "LineString" and g.distance(home) < 1e-6),
+                     None)
+        if first is None or first.length < 1e-3:
+            continue
+        end = np.array(first.coords[-1])
+        # Stop just short of the obstacle edge; the probe only samples terrain.
+        end = np.array([hx, hy]) + (end - [hx, hy]) * max(0.0, 1 - 1e-6)
+        paths.append(np.array([[hx, hy], end, [hx, hy]]))
+    return paths
+
+
+def generalised_range(scenario, model: EnergyModel, world, paths=None) -> RangeResult:
+    """Generalised offline ORangE (Eq. 11): the path integral approximated a priori.
+
+    The position-, speed- and wind-dependent forces are averaged over ``paths`` (default:
+    ``radial_probe_paths``), giving an energy per metre ``e(v)``; ``d = E_avail / e(v)`` at
+    the speed that maximises it.
+
+    Parameters
+    ----------
+    paths : polylines (k, 2) in the map frame standing for the mission a priori
+    """
+    paths = radial_probe_paths(world) if paths is None else paths
+    if not paths:
+        raise InputError("no a priori path: home has no free straight line out")
+    duty, rate = scenario.mission.duty_cycle, scenario.ancillary.sensor_rate_Hz
+    starts = np.concatenate([p[:-1] for p in paths])
+    ends = np.concatenate([p[1:] for p in paths])
+    steps = subdivide(world, starts, ends)  # terrain sampled once, re-costed per speed
+    turns = np.concatenate([heading_changes_rad(p) for p in paths if len(p) > 2] or [[]])
+    turning_J = float(np.sum(model.turning_energy_J(turns))) if turns.size else 0.0
+    lengths = float(np.sum(np.hypot(*(ends - starts).T)))
+
+    def cost_per_m(v):
+        e = segments_energy(model, world, None, None, v, duty, rate, steps=steps)
+        return (float(np.sum(e.ancillary_J + e.traversal_J)) + turning_J) / lengths
+
+    v = best_speed(cost_per_m, scenario.robot.v_min_mps, scenario.robot.v_max_mps)
+    cost = cost_per_m(v)
+    d = scenario.battery.usable_J / cost
+    return RangeResult(d, v, cost, d / (v * duty), "generalised offline (Eq. 11)")
+
+
+@dataclass(frozen=True)
+class RangeReport:
+    """What ``orange-plan range`` prints: both estimators and the energy breakdown."""
+
+    scenario: str
+    robot_kind: str
+    crr: float
+    omega: float
+    ancillary_power_W: float
+    simplified: RangeResult
+    generalised: RangeResult
+    energy: EnergyBreakdown
+
+    def to_dict(self) -> dict:
+        return {
+            "scenario": self.scenario,
+            "robot_kind": self.robot_kind,
+            "d_max_m": self.simplified.d_max_m,
+            "v_opt_mps": self.simplified.v_opt_mps,
+            "energy_per_m_J": self.simplified.energy_per_m_J,
+            "mission_time_s": self.simplified.mission_time_s,
+            "crr": self.crr,
+            "omega": self.omega,
+            "ancillary_power_W": self.ancillary_power_W,
+            "energy": asdict(self.energy),
+            "generalised": self.generalised.to_dict(),
+        }
+
+
+def range_report(ctx) -> RangeReport:
+    """Simplified range on flat default ground, its energy breakdown, and the generalised
+    offline range over the map (with wind, grades and surfaces)."""
+    scenario, model = ctx.scenario, ctx.model
+    crr = ctx.world.default_crr
+    simple = simplified_range(scenario, model, crr)
+    return RangeReport(
+        scenario=scenario.name,
+        robot_kind=scenario.robot.kind,
+        crr=crr,
+        omega=scenario.omega,
+        ancillary_power_W=float(model.ancillary_power_W(
+            flat_state(simple.v_opt_mps, crr, scenario.ancillary.sensor_rate_Hz))),
+        simplified=simple,
+        generalised=generalised_range(scenario, model, ctx.world),
+        energy=breakdown(scenario, model, simple, crr),
+    )

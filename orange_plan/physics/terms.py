@@ -1,0 +1,153 @@
+"""Physics terms of the ORangE model, one per vocabulary id (SPEC §6).
+
+Battery power is a sum of terms, each linear in its own coefficient(s) ``theta``:
+
+    P_battery = sum_power theta*phi + max(0, sum_force theta*phi) * v + sum_rate theta*phi
+
+* ``power`` terms are battery-side powers drawn for the whole mission time (the paper's
+  ancillary energy, Eq. 4-5 and Eq. 10, plus a drone's hover power).
+* ``force`` terms are traction forces divided by the manoeuvring efficiency Omega (the
+  paper's Eq. 1-2 and Eq. 7: rolling, aerodynamic drag, grade, inertia). They are summed
+  and clipped at zero *before* being charged, because a robot without regeneration gets
+  nothing back when the net force is negative (SPEC §7). The ``regen`` term is the
+  explicit exception: it returns a fraction of the negative part.
+* ``rate`` terms are charged per radian of heading change (skid-steer turning losses).
+
+The coefficients are lumped battery-side quantities (DESIGN.md): ``rolling_kg = m/Omega``,
+``drag_kg_per_m = c/Omega``, ``grade_kg = inertia_kg = m/Omega``. Every feature is written
+with operators that numpy arrays and CasADi symbols share (see ``ops``), so the planner and
+the speed optimiser evaluate the same expressions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+from orange_plan.physics import ops
+from orange_plan.physics.state import MotionState
+
+G_MPS2 = 9.81
+"""Standard gravity used by the reference model [m/s^2] (SPEC §7)."""
+
+Group = Literal["power", "force", "rate", "regen"]
+
+
+@dataclass(frozen=True)
+class Term:
+    """One physics term: a vocabulary id, its group, coefficient names and feature maths.
+
+    Parameters
+    ----------
+    id : vocabulary id (SPEC §6)
+    group : ``power`` [W per coefficient unit], ``force`` [N per coefficient unit],
+        ``rate`` [J/rad per coefficient unit] or ``regen`` (recovery fraction)
+    coefficients : names of the coefficients (unit suffixed)
+    feature : ``feature(state) -> tuple`` of one feature per coefficient
+    description : one line for the README and reports
+    """
+
+    id: str
+    group: Group
+    coefficients: tuple[str, ...]
+    feature: Callable[[MotionState], tuple]
+    description: str
+
+    def features(self, state: MotionState) -> tuple:
+        """Feature values ``phi`` (one per coefficient) at ``state``."""
+        return self.feature(state)
+
+
+# --- features: one small pure function per physics term --------------------------------
+
+
+def one_feature(state: MotionState):
+    """Constant 1: a power drawn whatever the motion [W/W]."""
+    return (1.0 + 0.0 * state.speed_mps,)
+
+
+def sensor_rate_feature(state: MotionState):
+    """Sensor operating frequency f_s [Hz] (the paper's Eq. 5: P_sense = s0 + s1 f_s)."""
+    return (state.sensor_rate_Hz + 0.0 * state.speed_mps,)
+
+
+def rolling_feature(state: MotionState):
+    """Rolling resistance per unit m/Omega: ``g crr cos(theta)`` [N/kg] (Eq. 1)."""
+    return (G_MPS2 * state.crr * state.cos_t,)
+
+
+def aero_drag_feature(state: MotionState):
+    """Drag per unit c/Omega: ``|a| (a . u)`` with ``a = v u - w`` [m^2/s^2] (Eq. 1, SPEC §7).
+
+    With no wind this is ``v^2``; a head wind raises it, a tail wind lowers it (and can make
+    it negative: the wind pushes).
+    """
+    ax, ay = state.air_velocity()
+    return (ops.sqrt(ax * ax + ay * ay) * (ax * state.dir_x + ay * state.dir_y),)
+
+
+def grade_feature(state: MotionState):
+    """Weight component along the slope per unit m/Omega: ``g sin(theta)`` [N/kg] (Eq. 1)."""
+    return (G_MPS2 * state.sin_t + 0.0 * state.speed_mps,)
+
+
+def inertia_feature(state: MotionState):
+    """Force to accelerate per unit m/Omega: ``dv/dt`` [N/kg]."""
+    return (state.accel_mps2 + 0.0 * state.speed_mps,)
+
+
+def turning_feature(state: MotionState):
+    """Heading rate magnitude ``|yaw rate|`` [rad/s]; in path form, |heading change| [rad]."""
+    return (ops.fabs(state.yaw_rate_radps),)
+
+
+def regen_feature(state: MotionState):
+    """Regen has no feature of its own: it scales the negative net traction (EnergyModel)."""
+    return (0.0 * state.speed_mps,)
+
+
+def surface_rolling_term(surface_names: tuple[str, ...]) -> Term:
+    """Rolling resistance with one coefficient per surface (calibrated per surface).
+
+    Coefficient ``rolling_kg_<name>`` plays the role of m/Omega on that surface only; the
+    plain ``rolling`` term then covers points whose ``surface_code`` is -1 (default ground).
+    """
+
+    def feature(state: MotionState):
+        base = G_MPS2 * state.crr * state.cos_t
+        return tuple(base * (state.surface_code == code) for code in range(len(surface_names)))
+
+    return Term(
+        id="surface_rolling",
+        group="force",
+        coefficients=tuple(f"rolling_kg_{name}" for name in surface_names),
+        feature=feature,
+        description="rolling resistance with a coefficient per surface",
+    )
+
+
+TERMS: dict[str, Term] = {
+    t.id: t
+    for t in (
+        Term("ancillary", "power", ("ancillary_W",), one_feature,
+             "sensing base + computing + communication power, battery side (Eq. 10)"),
+        Term("sensor_rate", "power", ("sensor_W_per_Hz",), sensor_rate_feature,
+             "sensing power per Hz of sensor rate, battery side (Eq. 5)"),
+        Term("hover", "power", ("hover_W",), one_feature,
+             "aerial power to stay aloft, battery side"),
+        Term("rolling", "force", ("rolling_kg",), rolling_feature,
+             "rolling resistance crr m g cos(theta) / Omega (Eq. 1)"),
+        Term("aero_drag", "force", ("drag_kg_per_m",), aero_drag_feature,
+             "aerodynamic (or hydrodynamic) drag c |a|(a.u) / Omega with wind (Eq. 1, 7)"),
+        Term("grade", "force", ("grade_kg",), grade_feature,
+             "weight along the slope m g sin(theta) / Omega (Eq. 1)"),
+        Term("inertia", "force", ("inertia_kg",), inertia_feature,
+             "acceleration force m dv/dt / Omega"),
+        Term("turning", "rate", ("turn_J_per_rad",), turning_feature,
+             "skid-steer turning losses per radian of heading change, battery side"),
+        Term("regen", "regen", ("regen_efficiency",), regen_feature,
+             "fraction of braking/descending mechanical energy recovered"),
+    )
+}
+"""The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""

@@ -1,0 +1,382 @@
+"""Scenario TOML (SPEC §2) -> frozen dataclasses, validated with close-match hints."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from orange_plan.errors import ScenarioError, close_match_hint
+from orange_plan.physics.battery import Battery, Losses
+
+ROBOT_KINDS = ("ground", "aerial", "marine")
+REQUIRED = object()
+
+
+def _positive(v):
+    return None if v > 0 else "must be > 0"
+
+
+def _non_negative(v):
+    return None if v >= 0 else "must be >= 0"
+
+
+def _fraction_open(v):
+    return None if 0 <= v < 1 else "must be a loss fraction in [0, 1) (efficiency in (0, 1])"
+
+
+def _unit_interval(v):
+    return None if 0 <= v <= 1 else "must be in [0, 1]"
+
+
+def _duty(v):
+    return None if 0 < v <= 1 else "must be in (0, 1] (fraction of mission time spent moving)"
+
+
+def _any(v):
+    return None
+
+
+def _celsius(v):
+    return None if v > -273.15 else "must be above absolute zero (-273.15 C)"
+
+
+# section -> key -> (default or REQUIRED, check). A check returns None or the complaint.
+NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
+    "robot": {
+        "mass_kg": (REQUIRED, _positive),
+        "crr": (REQUIRED, _unit_interval),
+        "drag_coeff_kg_per_m": (0.0, _non_negative),
+        "v_min_mps": (0.1, _positive),
+        "v_max_mps": (REQUIRED, _positive),
+        "accel_max_mps2": (0.5, _positive),
+        "hover_W": (0.0, _non_negative),
+        "turn_coeff_W_s_per_rad": (0.0, _non_negative),
+    },
+    "losses": {
+        "battery": (REQUIRED, _fraction_open),
+        "motor": (REQUIRED, _fraction_open),
+        "mechanical": (REQUIRED, _fraction_open),
+        "ancillary": (REQUIRED, _fraction_open),
+    },
+    "battery": {
+        "rated_energy_Wh": (REQUIRED, _positive),
+        "cycles": (0.0, _non_negative),
+        "age_days": (0.0, _non_negative),
+        "k1_per_cycle": (0.0, _non_negative),
+        "k2_per_day": (0.0, _non_negative),
+    },
+    "ancillary": {
+        "s0_W": (0.0, _non_negative),
+        "s1_W_per_Hz": (0.0, _non_negative),
+        "sensor_rate_Hz": (0.0, _non_negative),
+        "compute_W": (0.0, _non_negative),
+        "comm_W": (0.0, _non_negative),
+    },
+    "mission": {
+        "duty_cycle": (REQUIRED, _duty),
+        "sensor_radius_m": (1.0, _positive),
+        "time_limit_s": (None, _positive),
+    },
+    "environment": {
+        "wind_speed_mps": (0.0, _non_negative),
+        "wind_from_deg": (0.0, _any),
+        "ambient_C": (20.0, _celsius),
+    },
+}
+OTHER_KEYS = {
+    "": {"name", "map", "robot", "losses", "battery", "ancillary", "mission", "environment", "model"},
+    "robot": {"kind"},
+    "mission": {"home_xy_m", "reserve"},
+}
+RESERVE_KINDS = {"confidence": "in (0, 1)", "fraction": "in [0, 1)", "energy_J": ">= 0"}
+MODEL_EXTRA_TERMS = ("inertia", "regen", "surface_rolling")
+DEFAULT_REGEN_EFFICIENCY = 0.5
+"""Default recovery efficiency for a listed ``regen`` term without a value [-]."""
+DEFAULT_PRIOR_RELATIVE_STDERR = 0.10
+"""A priori (uncalibrated) standard error of each coefficient, relative to its value [-]."""
+
+
+@dataclass(frozen=True)
+class Robot:
+    """[robot]: the platform. Units in the names; see SPEC §2."""
+
+    kind: str
+    mass_kg: float
+    crr: float
+    drag_coeff_kg_per_m: float
+    v_min_mps: float
+    v_max_mps: float
+    accel_max_mps2: float
+    hover_W: float
+    turn_coeff_W_s_per_rad: float
+
+
+@dataclass(frozen=True)
+class Ancillary:
+    """[ancillary]: sensing, computing and communication loads (Eq. 5, 10) [W]."""
+
+    s0_W: float
+    s1_W_per_Hz: float
+    sensor_rate_Hz: float
+    compute_W: float
+    comm_W: float
+
+    @property
+    def load_W(self) -> float:
+        """Ancillary load before its loss eta_4 [W]."""
+        return self.s0_W + self.s1_W_per_Hz * self.sensor_rate_Hz + self.compute_W + self.comm_W
+
+
+@dataclass(frozen=True)
+class Reserve:
+    """[mission].reserve: ``kind`` is confidence, fraction or energy_J."""
+
+    kind: str
+    value: float
+
+
+@dataclass(frozen=True)
+class Mission:
+    """[mission]: home override, duty cycle D, sensor footprint, reserve, time limit."""
+
+    duty_cycle: float
+    sensor_radius_m: float
+    reserve: Reserve
+    home_xy_m: tuple[float, float] | None = None
+    time_limit_s: float | None = None
+
+
+@dataclass(frozen=True)
+class Environment:
+    """[environment]: wind (or water current) and ambient temperature."""
+
+    wind_speed_mps: float
+    wind_from_deg: float
+    ambient_C: float
+
+    @property
+    def wind_xy_mps(self) -> tuple[float, float]:
+        """Wind vector (x east, y north) from the meteorological direction [m/s] (SPEC §7)."""
+        rad = math.radians(self.wind_from_deg)
+        return (-self.wind_speed_mps * math.sin(rad), -self.wind_speed_mps * math.cos(rad))
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """[model]: extra terms beyond the reference model, their coefficients, uncertainties."""
+
+    terms: tuple[str, ...] = ()
+    coefficients: Mapping[str, float] = field(default_factory=dict)
+    stderr: Mapping[str, float] = field(default_factory=dict)
+    prior_relative_stderr: float = DEFAULT_PRIOR_RELATIVE_STDERR
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One robot, one battery, one map, one mission (SPEC §2)."""
+
+    name: str
+    path: Path
+    map_path: Path
+    robot: Robot
+    losses: Losses
+    battery: Battery
+    ancillary: Ancillary
+    mission: Mission
+    environment: Environment
+    model: ModelSpec
+
+    @property
+    def omega(self) -> float:
+        """Manoeuvring efficiency Omega [-]."""
+        return self.losses.omega
+
+    @property
+    def ancillary_power_W(self) -> float:
+        """Battery-side ancillary power P_anc [W] (SPEC §7)."""
+        return self.ancillary.load_W / (1.0 - self.losses.ancillary) + self.robot.hover_W
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the file, the key and the problem (missing key, unknown key with a
+        close-match hint, wrong type, out-of-range value, missing map file).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: scenario file not found")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: not a valid TOML file ({exc})") from None
+    return scenario_from_dict(data, path)
+
+
+def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:
+    """Validate a parsed scenario mapping; ``path`` locates the map and names errors."""
+    where = str(path)
+    _check_keys(data, OTHER_KEYS[""], "", where)
+    name = data.get("name", path.stem)
+    if not isinstance(name, str) or not name:
+        raise ScenarioError(f"{where}: name must be a non-empty string")
+    if "map" not in data:
+        raise ScenarioError(f"{where}: missing key 'map' (path of the map GeoJSON)")
+    if not isinstance(data["map"], str):
+        raise ScenarioError(f"{where}: map must be a path string, got {data['map']!r}")
+    map_path = (path.parent / data["map"]).resolve()
+    if not map_path.is_file():
+        raise ScenarioError(f"{where}: map file '{data['map']}' not found")
+
+    values = {sec: _numbers(data, sec, where) for sec in NUMBER_SCHEMA}
+    robot_tbl = data.get("robot", {})
+    kind = robot_tbl.get("kind", REQUIRED)
+    if kind is REQUIRED:
+        raise ScenarioError(f"{where}: missing key 'robot.kind' (one of {', '.join(ROBOT_KINDS)})")
+    if kind not in ROBOT_KINDS:
+        raise ScenarioError(
+            f"{where}: robot.kind = {kind!r} must be one of {', '.join(ROBOT_KINDS)}"
+            + close_match_hint(str(kind), ROBOT_KINDS)
+        )
+    robot = Robot(kind=kind, **values["robot"])
+    if robot.v_min_mps > robot.v_max_mps:
+        raise ScenarioError(
+            f"{where}: robot.v_min_mps = {robot.v_min_mps} exceeds robot.v_max_mps = {robot.v_max_mps}"
+        )
+    losses = Losses(**values["losses"])
+    battery = Battery(storage_loss=losses.battery, **values["battery"])
+    mission_tbl = data.get("mission", {})
+    mission = Mission(
+        home_xy_m=_home(mission_tbl.get("home_xy_m"), where),
+        reserve=_reserve(mission_tbl.get("reserve", {"fraction": 0.0}), where),
+        **values["mission"],
+    )
+    return Scenario(
+        name=name,
+        path=path,
+        map_path=map_path,
+        robot=robot,
+        losses=losses,
+        battery=battery,
+        ancillary=Ancillary(**values["ancillary"]),
+        mission=mission,
+        environment=Environment(**values["environment"]),
+        model=_model_spec(data.get("model", {}), where),
+    )
+
+
+def _table(data, section: str, where: str) -> Mapping[str, Any]:
+    table = data.get(section, {})
+    if not isinstance(table, Mapping):
+        raise ScenarioError(f"{where}: [{section}] must be a table, got {table!r}")
+    return table
+
+
+def _check_keys(table: Mapping[str, Any], allowed, section: str, where: str) -> None:
+    for key in table:
+        if key not in allowed:
+            dotted = f"{section}.{key}" if section else key
+            raise ScenarioError(
+                f"{where}: unknown key '{dotted}'" + close_match_hint(key, allowed)
+            )
+
+
+def _number(value, dotted: str, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f"{where}: {dotted} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ScenarioError(f"{where}: {dotted} must be finite, got {value!r}")
+    return float(value)
+
+
+def _numbers(data, section: str, where: str) -> dict[str, Any]:
+    schema = NUMBER_SCHEMA[section]
+    table = _table(data, section, where)
+    _check_keys(table, set(schema) | OTHER_KEYS.get(section, set()), section, where)
+    out = {}
+    for key, (default, check) in schema.items():
+        dotted = f"{section}.{key}"
+        if key not in table:
+            if default is REQUIRED:
+                raise ScenarioError(f"{where}: missing key '{dotted}'")
+            out[key] = default
+            continue
+        value = _number(table[key], dotted, where)
+        problem = check(value)
+        if problem:
+            raise ScenarioError(f"{where}: {dotted} = {value:g} {problem}")
+        out[key] = value
+    return out
+
+
+def _home(value, where: str):
+    if value is None:
+        return None
+    if not isinstance(value, list) or len(value) != 2:
+        raise ScenarioError(f"{where}: mission.home_xy_m must be [x, y] in metres, got {value!r}")
+    return (_number(value[0], "mission.home_xy_m[0]", where),
+            _number(value[1], "mission.home_xy_m[1]", where))
+
+
+def _reserve(value, where: str) -> Reserve:
+    if not isinstance(value, Mapping) or len(value) != 1:
+        raise ScenarioError(
+            f"{where}: mission.reserve must be one of {{ confidence = p }}, {{ fraction = f }}, "
+            f"{{ energy_J = E }}, got {value!r}"
+        )
+    (kind, raw), = value.items()
+    if kind not in RESERVE_KINDS:
+        raise ScenarioError(
+            f"{where}: unknown key 'mission.reserve.{kind}'" + close_match_hint(kind, RESERVE_KINDS)
+        )
+    v = _number(raw, f"mission.reserve.{kind}", where)
+    ok = {"confidence": 0 < v < 1, "fraction": 0 <= v < 1, "energy_J": v >= 0}[kind]
+    if not ok:
+        raise ScenarioError(f"{where}: mission.reserve.{kind} = {v:g} must be {RESERVE_KINDS[kind]}")
+    return Reserve(kind, v)
+
+
+def _model_spec(table, where: str) -> ModelSpec:
+    if not isinstance(table, Mapping):
+        raise ScenarioError(f"{where}: [model] must be a table")
+    from orange_plan.physics.builder import model_coefficient_names  # avoid an import cycle
+
+    terms = table.get("terms", [])
+    if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
+        raise ScenarioError(f"{where}: model.terms must be a list of term ids, got {terms!r}")
+    for t in terms:
+        if t not in MODEL_EXTRA_TERMS:
+            raise ScenarioError(
+                f"{where}: model.terms holds unknown term '{t}' (known extra terms: "
+                f"{', '.join(MODEL_EXTRA_TERMS)})" + close_match_hint(t, MODEL_EXTRA_TERMS)
+            )
+    allowed_coefs = model_coefficient_names(terms)
+    coefficients, stderr = {}, {}
+    rel = DEFAULT_PRIOR_RELATIVE_STDERR
+    for key, value in table.items():
+        if key == "terms":
+            continue
+        if key == "prior_relative_stderr":
+            rel = _number(value, "model.prior_relative_stderr", where)
+            if rel < 0:
+                raise ScenarioError(f"{where}: model.prior_relative_stderr = {rel:g} must be >= 0")
+        elif key == "stderr":
+            if not isinstance(value, Mapping):
+                raise ScenarioError(f"{where}: model.stderr must be a table of coefficient = value")
+            for name, sv in value.items():
+                stderr[name] = _number(sv, f"model.stderr.{name}", where)
+                if stderr[name] < 0:
+                    raise ScenarioError(f"{where}: model.stderr.{name} must be >= 0")
+        elif key in allowed_coefs or ("surface_rolling" in terms and key.startswith("rolling_kg_")):
+            coefficients[key] = _number(value, f"model.{key}", where)
+        else:
+            options = set(allowed_coefs) | {"terms", "stderr", "prior_relative_stderr"}
+            raise ScenarioError(f"{where}: unknown key 'model.{key}'" + close_match_hint(key, options))
+    return ModelSpec(tuple(terms), coefficients, stderr, rel)

@@ -1,0 +1,200 @@
+"""Map GeoJSON (SPEC §1) -> a validated, frozen Map."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import shapely
+from shapely.geometry import MultiPolygon, Point, Polygon, shape
+from shapely.validation import explain_validity
+
+from orange_plan.errors import MapError, close_match_hint
+from orange_plan.world.raster import ElevationRaster, load_elevation
+
+KINDS = {"boundary", "obstacle", "no_go", "surface", "home"}
+TOP_LEVEL_KEYS = {"type", "features", "default_surface", "elevation", "name", "crs", "bbox"}
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A surface polygon with its rolling coefficient (later surfaces win on overlap)."""
+
+    name: str
+    crr: float
+    polygon: Polygon | MultiPolygon
+
+
+@dataclass(frozen=True)
+class Map:
+    """A validated map in a local metric frame (x east, y north) [m].
+
+    Attributes
+    ----------
+    boundary : the workspace
+    keep_out : union of obstacles and no-go zones (empty polygon if none)
+    obstacles, no_go : the individual keep-out polygons
+    surfaces : surfaces in file order (later ones win)
+    home_xy_m : the map's home point, or None
+    default_surface : (name, crr) or None
+    elevation : raster, or None for flat ground at z = 0
+    path : the file it came from
+    """
+
+    boundary: Polygon
+    obstacles: tuple
+    no_go: tuple
+    surfaces: tuple[Surface, ...]
+    home_xy_m: tuple[float, float] | None
+    default_surface: tuple[str, float] | None
+    elevation: ElevationRaster | None
+    path: Path
+
+    @property
+    def keep_out(self):
+        return shapely.union_all([*self.obstacles, *self.no_go])
+
+    @property
+    def free_space(self):
+        """Boundary minus keep-out zones."""
+        return self.boundary.difference(self.keep_out)
+
+    @property
+    def surface_names(self) -> tuple[str, ...]:
+        """Distinct surface names in order of first appearance."""
+        return tuple(dict.fromkeys(s.name for s in self.surfaces))
+
+
+def load_map(path: str | Path) -> Map:
+    """Read and validate a map GeoJSON file.
+
+    Raises
+    ------
+    MapError
+        One line naming the file, the feature index and the problem. Nothing is repaired.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MapError(f"{path}: map file not found")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise MapError(f"{path}: not a valid GeoJSON/JSON file ({exc})") from None
+    if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
+        raise MapError(f"{path}: must be a GeoJSON FeatureCollection")
+    features = data.get("features")
+    if not isinstance(features, list) or not features:
+        raise MapError(f"{path}: empty map (no features; need at least a boundary)")
+    parts: dict[str, list] = {k: [] for k in KINDS}
+    for i, feature in enumerate(features):
+        kind, geom, props = _feature(feature, i, path)
+        parts[kind].append((i, geom, props))
+
+    boundary = _boundary(parts["boundary"], path)
+    obstacles = tuple(_polygonal(i, g, "obstacle", path) for i, g, _ in parts["obstacle"])
+    no_go = tuple(_polygonal(i, g, "no_go", path) for i, g, _ in parts["no_go"])
+    surfaces = tuple(_surface(i, g, p, path) for i, g, p in parts["surface"])
+    home = _home(parts["home"], boundary, obstacles + no_go, path)
+    default_surface = _default_surface(data.get("default_surface"), path)
+    elevation = None
+    if "elevation" in data:
+        if not isinstance(data["elevation"], str):
+            raise MapError(f"{path}: 'elevation' must be a raster file name")
+        elevation = load_elevation(path.parent / data["elevation"])
+        _check_covers(elevation, boundary, data["elevation"], path)
+    return Map(boundary, obstacles, no_go, surfaces, home, default_surface, elevation, path)
+
+
+def _feature(feature, i: int, path: Path):
+    if not isinstance(feature, dict) or feature.get("type") != "Feature":
+        raise MapError(f"{path}: feature {i} is not a GeoJSON Feature")
+    props = feature.get("properties") or {}
+    kind = props.get("kind")
+    if kind not in KINDS:
+        raise MapError(
+            f"{path}: feature {i} has unknown kind {kind!r} (allowed: {', '.join(sorted(KINDS))})"
+            + close_match_hint(str(kind), KINDS)
+        )
+    try:
+        geom = shape(feature.get("geometry"))
+    except Exception as exc:  # shapely raises several types for malformed geometry
+        raise MapError(f"{path}: feature {i} ({kind}) has malformed geometry ({exc})") from None
+    return kind, geom, props
+
+
+def _polygonal(i: int, geom, kind: str, path: Path):
+    if not isinstance(geom, (Polygon, MultiPolygon)):
+        raise MapError(f"{path}: feature {i} ({kind}) must be a Polygon or MultiPolygon")
+    if geom.is_empty:
+        raise MapError(f"{path}: feature {i} ({kind}) is empty")
+    if not geom.is_valid:
+        raise MapError(f"{path}: feature {i} ({kind}) is invalid: {explain_validity(geom)}")
+    return geom
+
+
+def _boundary(found, path: Path) -> Polygon:
+    if len(found) != 1:
+        raise MapError(f"{path}: needs exactly one boundary feature, found {len(found)}")
+    i, geom, _ = found[0]
+    if not isinstance(geom, Polygon):
+        raise MapError(f"{path}: feature {i} (boundary) must be a Polygon")
+    if geom.is_empty or geom.area <= 0:
+        raise MapError(f"{path}: feature {i} (boundary) is empty")
+    if not geom.is_valid:
+        raise MapError(
+            f"{path}: feature {i} (boundary) is self-intersecting or invalid: {explain_validity(geom)}"
+        )
+    return geom
+
+
+def _surface(i: int, geom, props, path: Path) -> Surface:
+    geom = _polygonal(i, geom, "surface", path)
+    name = props.get("name")
+    if not isinstance(name, str) or not name:
+        raise MapError(f"{path}: feature {i} (surface) needs a 'name'")
+    crr = _crr(props.get("crr"), f"feature {i} (surface '{name}')", path)
+    return Surface(name, crr, geom)
+
+
+def _crr(value, what: str, path: Path) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise MapError(f"{path}: {what} needs a numeric 'crr', got {value!r}")
+    if not 0.0 <= value <= 1.0:
+        raise MapError(f"{path}: {what} has crr = {value} outside [0, 1]")
+    return float(value)
+
+
+def _home(found, boundary, keep_out, path: Path):
+    if not found:
+        return None
+    if len(found) > 1:
+        raise MapError(f"{path}: more than one home feature (features {[f[0] for f in found]})")
+    i, geom, _ = found[0]
+    if not isinstance(geom, Point):
+        raise MapError(f"{path}: feature {i} (home) must be a Point")
+    if not boundary.covers(geom):
+        raise MapError(f"{path}: feature {i} (home) lies outside the boundary")
+    for zone in keep_out:
+        if zone.intersects(geom):
+            raise MapError(f"{path}: feature {i} (home) lies inside an obstacle or no-go zone")
+    return (geom.x, geom.y)
+
+
+def _default_surface(value, path: Path):
+    if value is None:
+        return None
+    if not isinstance(value, dict) or "name" not in value or "crr" not in value:
+        raise MapError(f"{path}: default_surface must be {{\"name\": ..., \"crr\": ...}}")
+    return (str(value["name"]), _crr(value["crr"], "default_surface", path))
+
+
+def _check_covers(raster: ElevationRaster, boundary: Polygon, name: str, path: Path) -> None:
+    xmin, ymin, xmax, ymax = raster.bounds_m
+    bx0, by0, bx1, by1 = boundary.bounds
+    tol = 1e-6
+    if bx0 < xmin - tol or by0 < ymin - tol or bx1 > xmax + tol or by1 > ymax + tol:
+        raise MapError(
+            f"{path}: elevation raster '{name}' covers x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g} m "
+            f"but the boundary spans x {bx0:g}..{bx1:g}, y {by0:g}..{by1:g} m"
+        )
