@@ -15,7 +15,6 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.table import Table
 
 from orange_plan.errors import InputError, OrangeError
 
@@ -56,7 +55,7 @@ def handles_errors(fn):
             fail(str(exc), 1)
         except (typer.Exit, typer.Abort, SystemExit):
             raise
-        except Exception as exc:  # an internal failure must still be one clear line
+        except Exception as exc:  # noqa: BLE001 - an internal failure is still one clear line
             fail(f"internal error: {type(exc).__name__}: {exc}", 1)
 
     return wrapper
@@ -89,55 +88,22 @@ def _root(
         raise typer.Exit()
 
 
-@app.command("range")
-@handles_errors
-def range_cmd(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
-    """Operational range: d_max, v_opt and where the energy goes (Eq. 3, 4, 6, 11)."""
-    from orange_plan.context import load_context
-    from orange_plan.physics.range import range_report
-
-    report = range_report(load_context(scenario))
-    if as_json:
-        print_json(report.to_dict())
-        return
-    out.print(_range_table(report))
-
-
-def _range_table(report) -> Table:
-    e, s, g = report.energy, report.simplified, report.generalised
-    table = Table(title=f"Operational range: {report.scenario} ({report.robot_kind})",
-                  show_header=True, header_style="bold")
-    table.add_column("quantity")
-    table.add_column("value", justify="right")
-    table.add_column("note")
-    rows = [
-        ("d_max", f"{s.d_max_m:,.1f} m", f"simplified ORangE, Eq. 6, flat ground crr={report.crr:g}"),
-        ("v_opt", f"{s.v_opt_mps:.3f} m/s", "speed in \\[v_min, v_max] maximising range"),
-        ("mission time", f"{s.mission_time_s / 60:,.1f} min", "stops included (duty cycle)"),
-        ("energy per metre", f"{s.energy_per_m_J:,.2f} J/m", ""),
-        ("d_max (generalised)", f"{g.d_max_m:,.1f} m",
-         f"offline Eq. 11 over the map at {g.v_opt_mps:.3f} m/s (wind, grades, surfaces)"),
-        ("", "", ""),
-        ("rated energy", f"{e.rated_J / 1e3:,.2f} kJ", "E_O"),
-        ("capacity decay", f"{e.decay_J / 1e3:,.2f} kJ", "Eq. 3: cycles and age"),
-        ("battery loss eta_1", f"{e.battery_loss_eta1_J / 1e3:,.2f} kJ", "self-discharge"),
-        ("available", f"{e.available_J / 1e3:,.2f} kJ", "E_avail = ancillary + traversal"),
-        ("  ancillary", f"{e.ancillary_J / 1e3:,.2f} kJ",
-         f"P_anc = {report.ancillary_power_W:.2f} W for the mission time"),
-        ("    ancillary loss eta_4", f"{e.ancillary_loss_eta4_J / 1e3:,.2f} kJ", ""),
-        ("  traversal", f"{e.traversal_J / 1e3:,.2f} kJ", f"ME / Omega, Omega = {report.omega:.3f}"),
-        ("    motor loss eta_2", f"{e.motor_loss_eta2_J / 1e3:,.2f} kJ", ""),
-        ("    mechanical loss eta_3", f"{e.mechanical_loss_eta3_J / 1e3:,.2f} kJ", ""),
-        ("    mechanical work", f"{e.mechanical_work_J / 1e3:,.2f} kJ", "rolling + drag (ME)"),
-    ]
-    for row in rows:
-        table.add_row(*row)
-    return table
-
-
 def main() -> None:
     """Console-script entry point."""
+    _register_commands()
     app()
+
+
+def _register_commands() -> None:
+    """Import the command modules; each registers its command(s) on ``app``."""
+    import importlib
+
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"orange_plan.commands.{name}")
+
+
+COMMAND_MODULES = ["range_"]
+"""One module per command in orange_plan/commands/, registered in this order."""
 
 
 if __name__ == "__main__":

@@ -1,0 +1,1 @@
+"""CLI commands, one module each; see ``orange_plan.cli.COMMAND_MODULES``."""
