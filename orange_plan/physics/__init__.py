@@ -7,11 +7,11 @@ from orange_plan.physics.state import MotionState
 from orange_plan.physics.terms import G_MPS2, TERMS
 
 __all__ = [
+    "G_MPS2",
+    "TERMS",
     "Battery",
     "EnergyModel",
-    "G_MPS2",
     "Losses",
     "MotionState",
     "SegmentEnergy",
-    "TERMS",
 ]

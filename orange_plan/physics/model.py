@@ -217,9 +217,7 @@ class EnergyModel:
         columns = []
         for term in self.terms:
             phis = [np.broadcast_to(np.asarray(p, dtype=float), shape) for p in term.features(state)]
-            if term.group == "power":
-                columns += phis
-            elif term.group == "rate":
+            if term.group == "power" or term.group == "rate":
                 columns += phis
             elif term.group == "force":
                 regen = self._regen_fraction()
