@@ -118,7 +118,7 @@ def _feature(feature, i: int, path: Path):
         )
     try:
         geom = shape(feature.get("geometry"))
-    except Exception as exc:  # shapely raises several types for malformed geometry
+    except Exception as exc:  # noqa: BLE001 - shapely raises several types here
         raise MapError(f"{path}: feature {i} ({kind}) has malformed geometry ({exc})") from None
     return kind, geom, props
 
