@@ -37,7 +37,7 @@ CAMPUS_CELL_M = 5.0
 CAMPUS_N = 168  # 168 cells x 5 m = 840 m: covers -20..820 in x and y
 HILLS = (
     # (x_m, y_m, height_m, sigma_m)
-    (400.0, 410.0, 40.0, 100.0),  # "observatory hill", between the depot and the east side
+    (400.0, 410.0, 45.0, 100.0),  # "observatory hill", between the depot and the east side
     (620.0, 660.0, 30.0, 80.0),   # "north knoll"
 )
 

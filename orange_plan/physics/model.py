@@ -226,6 +226,36 @@ class EnergyModel:
                 columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * speed)
         return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
 
+    def segment_energy_jacobian(
+        self, state: MotionState, length_m, duty_cycle, heading_change_rad=0.0
+    ) -> np.ndarray:
+        """d(segment energy)/d theta at numeric ``state``, shape ``(n_steps, n_coefficients)``.
+
+        Energy is linear in theta apart from the no-recovery clip, applied here as a mask at
+        the current coefficients; with it, ``jacobian @ theta`` equals the segment energy.
+        """
+        length = np.asarray(length_m, dtype=float)
+        speed = np.asarray(state.speed_mps, dtype=float)
+        moving_s = length / speed
+        force = np.asarray(self.traction_force_N(state), dtype=float)
+        shape = np.broadcast(force, speed, length).shape
+        regen = self._regen_fraction()
+        turn_state = MotionState(speed_mps=speed, yaw_rate_radps=heading_change_rad)
+        columns = []
+        for term in self.terms:
+            source = turn_state if term.group == "rate" else state
+            for phi in term.features(source):
+                phi = np.asarray(phi, dtype=float)
+                if term.group == "power":
+                    columns.append(phi * moving_s / duty_cycle)
+                elif term.group == "rate":
+                    columns.append(phi)
+                elif term.group == "force":
+                    columns.append(np.where(force > 0, phi * length, -regen * phi * length))
+                else:  # regen efficiency: recovered energy is -eff Omega^2 max(0, -F) L
+                    columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * length)
+        return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
+
     def energy_variance_J2(self, gradient: np.ndarray) -> np.ndarray:
         """Variance ``g' Cov g`` of energies with gradients ``gradient`` (..., k) [J^2]."""
         g = np.asarray(gradient, dtype=float)

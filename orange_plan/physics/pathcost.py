@@ -189,3 +189,17 @@ def path_energy(
     cumulative = np.r_[0.0, np.cumsum(seg.total_J)]
     time = np.r_[0.0, np.cumsum(seg.mission_time_s)]
     return PathEnergy(seg, cumulative, time)
+
+
+def segments_energy_jacobian(
+    model: EnergyModel, world, steps: Steps, speed_mps, duty_cycle: float, sensor_rate_Hz=0.0
+) -> np.ndarray:
+    """d(energy of each segment)/d theta, shape (n_segments, n_coefficients) [J per unit].
+
+    With the model's covariance, ``model.energy_variance_J2(jac.sum(0))`` is the variance of a
+    path's energy: the basis of a reserve sized by confidence (DESIGN.md, SPEC §7).
+    """
+    speed = np.broadcast_to(np.asarray(speed_mps, float), (steps.n_segments,))
+    state = steps.state(speed, world.wind_xy_mps, sensor_rate_Hz)
+    jac = model.segment_energy_jacobian(state, steps.length_m, duty_cycle)
+    return np.stack([steps.per_segment(jac[:, k]) for k in range(jac.shape[1])], axis=-1)
