@@ -8,9 +8,12 @@ Writes, deterministically (no randomness), in the maps' local metric frame (x ea
   z = 0 for x <= 2.5 m, a 4 degree ramp from x = 2.5 m to x = 5.5 m (rise 0.21 m), then a flat
   platform. 0.25 m cells, 0.5 m margin around the boundary.
 - ``hilly_campus_dem.tif``: float32 GeoTIFF for ``hilly_campus.geojson`` (800 m x 800 m).
-  Flat ground at z = 0 with two Gaussian hills: a 40 m hill (sigma 100 m) on the straight line
-  between the depot (60, 400) and the east side of the campus, and a 30 m hill (sigma 80 m) to
-  the north-east. 5 m cells, 20 m (4 cells) margin around the boundary.
+  Flat ground at z = 0 with two Gaussian hills: a 45 m hill (sigma 100 m, steepest grade about
+  27 %) on the straight line between the depot (60, 400) and the east side of the campus, and a
+  30 m hill (sigma 80 m) to the north-east. 5 m cells, 20 m (4 cells) margin around the boundary.
+  Sized so that, for ``scenarios/kiwibot_campus.toml`` under the reference model (climbing costs
+  m g dz / Omega, nothing is recovered downhill), driving from the depot to (740, 400) round the
+  south of the big hill costs about a third less energy than the straight walk over its top.
 
 Raster values are elevations at cell centres (SPEC section 7). Needs numpy and rasterio.
 """
