@@ -107,4 +107,8 @@ COMMAND_MODULES = ["range_"]
 
 
 if __name__ == "__main__":
-    main()
+    # ``python -m orange_plan.cli`` runs this file as __main__, a second copy of the module;
+    # the command modules register on the importable orange_plan.cli's app, so run that one.
+    from orange_plan.cli import main as _main
+
+    _main()

@@ -10,7 +10,7 @@ import numpy as np
 from orange_plan.errors import InputError
 from orange_plan.physics import ops
 from orange_plan.physics.state import MotionState
-from orange_plan.physics.terms import Term
+from orange_plan.physics.terms import ROLLING_DEFAULT_GROUND, Term
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,9 @@ class EnergyModel:
         ids = [t.id for t in terms]
         if len(set(ids)) != len(ids):
             raise InputError(f"EnergyModel terms repeat an id: {ids}")
+        if "surface_rolling" in ids:
+            # Surface points belong to surface_rolling; plain rolling keeps default ground only.
+            terms = [ROLLING_DEFAULT_GROUND if t.id == "rolling" else t for t in terms]
         self.terms: tuple[Term, ...] = tuple(terms)
         self.names: tuple[str, ...] = tuple(c for t in terms for c in t.coefficients)
         missing = [n for n in self.names if n not in theta]
@@ -158,7 +161,7 @@ class EnergyModel:
         force = self.traction_force_N(state, theta)
         positive = ops.fmax(force, 0.0) * state.speed_mps
         regen = self._regen_fraction(theta)
-        if regen:
+        if self.has("regen"):  # not `if regen`: theta may be a CasADi symbol
             positive = positive - regen * ops.fmax(-force, 0.0) * state.speed_mps
         return positive
 
@@ -221,7 +224,7 @@ class EnergyModel:
                 columns += phis
             elif term.group == "force":
                 regen = self._regen_fraction()
-                columns += [np.where(moving_on, p * speed, -regen * p * speed) for p in phis]
+                columns += [np.where(moving_on, p * speed, regen * p * speed) for p in phis]
             else:  # regen: d/d(eff) of -eff Omega^2 max(0, -F) v
                 columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * speed)
         return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
@@ -232,7 +235,8 @@ class EnergyModel:
         """d(segment energy)/d theta at numeric ``state``, shape ``(n_steps, n_coefficients)``.
 
         Energy is linear in theta apart from the no-recovery clip, applied here as a mask at
-        the current coefficients; with it, ``jacobian @ theta`` equals the segment energy.
+        the current coefficients; with it, ``jacobian @ theta`` equals the segment energy (without
+        ``regen``: its efficiency multiplies the force coefficients, a bilinear product).
         """
         length = np.asarray(length_m, dtype=float)
         speed = np.asarray(state.speed_mps, dtype=float)
@@ -251,7 +255,7 @@ class EnergyModel:
                 elif term.group == "rate":
                     columns.append(phi)
                 elif term.group == "force":
-                    columns.append(np.where(force > 0, phi * length, -regen * phi * length))
+                    columns.append(np.where(force > 0, phi * length, regen * phi * length))
                 else:  # regen efficiency: recovered energy is -eff Omega^2 max(0, -F) L
                     columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * length)
         return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)

@@ -72,8 +72,13 @@ def max_step_m(world) -> float:
     return MAX_STEP_M if raster is None else min(MAX_STEP_M, raster.cell_m / 2)
 
 
-def subdivide(world, start_xy, end_xy, step_m: float | None = None) -> Steps:
-    """Cut segments ``start_xy[i] -> end_xy[i]`` (shape (n, 2)) into straight sub-steps."""
+def subdivide(world, start_xy, end_xy, step_m: float | None = None, terrain=None) -> Steps:
+    """Cut segments ``start_xy[i] -> end_xy[i]`` (shape (n, 2)) into straight sub-steps.
+
+    ``terrain``: optional object with ``crr_at`` and ``surface_code_at`` used instead of the
+    world's exact shapely queries (e.g. ``world.rasters.TerrainRasters`` for roadmap weights).
+    """
+    surfaces = world if terrain is None else terrain
     a = np.atleast_2d(np.asarray(start_xy, float))
     b = np.atleast_2d(np.asarray(end_xy, float))
     if a.shape != b.shape or a.shape[-1] != 2:
@@ -102,8 +107,8 @@ def subdivide(world, start_xy, end_xy, step_m: float | None = None) -> Steps:
         dz_m=dz,
         dir_x=np.where(horiz > 0, ux, 1.0)[seg],
         dir_y=np.where(horiz > 0, uy, 0.0)[seg],
-        crr=world.crr_at(mid[:, 0], mid[:, 1]),
-        surface_code=world.surface_code_at(mid[:, 0], mid[:, 1]),
+        crr=surfaces.crr_at(mid[:, 0], mid[:, 1]),
+        surface_code=surfaces.surface_code_at(mid[:, 0], mid[:, 1]),
         n_segments=len(a),
     )
 

@@ -101,7 +101,10 @@ def breakdown(scenario, model: EnergyModel, result: RangeResult, crr: float) -> 
     state = flat_state(result.v_opt_mps, crr, rate)
     seg = model.segment_energy(state, result.d_max_m, duty)
     ancillary_J, traversal_J = float(seg.ancillary_J), float(seg.traversal_J + seg.turning_J)
-    hover_J = scenario.robot.hover_W * float(seg.mission_time_s) if model.has("hover") else 0.0
+    # The model's hover coefficient (a [model] table or calibration may have replaced the
+    # scenario's hover_W); hover power is battery side, so eta_4 takes nothing of it.
+    hover_W = model.coefficient("hover_W") if model.has("hover") else 0.0
+    hover_J = hover_W * float(seg.mission_time_s)
     return EnergyBreakdown(
         rated_J=bat.rated_energy_J,
         capacity_J=bat.capacity_J,

@@ -151,3 +151,19 @@ TERMS: dict[str, Term] = {
     )
 }
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""
+
+
+def default_ground_rolling_feature(state: MotionState):
+    """Rolling per unit m/Omega on default ground only (``surface_code < 0``) [N/kg].
+
+    EnergyModel uses it for ``rolling`` whenever ``surface_rolling`` is present, so a point on
+    a surface polygon is charged by its surface coefficient alone, not twice.
+    """
+    return (G_MPS2 * state.crr * state.cos_t * (state.surface_code < 0),)
+
+
+ROLLING_DEFAULT_GROUND = Term(
+    "rolling", "force", ("rolling_kg",), default_ground_rolling_feature,
+    "rolling resistance on default ground (surfaces are charged by surface_rolling)",
+)
+"""The ``rolling`` term as it stands next to ``surface_rolling``."""

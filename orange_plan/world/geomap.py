@@ -83,6 +83,11 @@ def load_map(path: str | Path) -> Map:
         raise MapError(f"{path}: not a valid GeoJSON/JSON file ({exc})") from None
     if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
         raise MapError(f"{path}: must be a GeoJSON FeatureCollection")
+    for key in data:
+        if key not in TOP_LEVEL_KEYS:  # a misspelt "elevation" must not silently mean flat ground
+            raise MapError(
+                f"{path}: unknown top-level member '{key}'" + close_match_hint(key, TOP_LEVEL_KEYS)
+            )
     features = data.get("features")
     if not isinstance(features, list) or not features:
         raise MapError(f"{path}: empty map (no features; need at least a boundary)")
@@ -139,12 +144,13 @@ def _boundary(found, path: Path) -> Polygon:
     i, geom, _ = found[0]
     if not isinstance(geom, Polygon):
         raise MapError(f"{path}: feature {i} (boundary) must be a Polygon")
-    if geom.is_empty or geom.area <= 0:
-        raise MapError(f"{path}: feature {i} (boundary) is empty")
-    if not geom.is_valid:
+    # Validity first: a bow-tie's signed lobes cancel to zero area, yet it is self-intersecting.
+    if not geom.is_empty and not geom.is_valid:
         raise MapError(
             f"{path}: feature {i} (boundary) is self-intersecting or invalid: {explain_validity(geom)}"
         )
+    if geom.is_empty or geom.area <= 0:
+        raise MapError(f"{path}: feature {i} (boundary) is empty")
     return geom
 
 
