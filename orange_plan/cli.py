@@ -102,7 +102,7 @@ def _register_commands() -> None:
         importlib.import_module(f"orange_plan.commands.{name}")
 
 
-COMMAND_MODULES = ["range_"]
+COMMAND_MODULES = ["range_", "convert", "predict"]
 """One module per command in orange_plan/commands/, registered in this order."""
 
 

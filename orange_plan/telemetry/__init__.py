@@ -1,0 +1,23 @@
+"""Telemetry: the recording table (SPEC §3), its checks and importers from robot logs."""
+
+from orange_plan.telemetry.recording import (
+    DataIssue,
+    Recording,
+    integrate_J,
+    load_recording,
+    motion_state,
+    recording_from_frame,
+    split_blocks,
+    write_recording,
+)
+
+__all__ = [
+    "DataIssue",
+    "Recording",
+    "integrate_J",
+    "load_recording",
+    "motion_state",
+    "recording_from_frame",
+    "split_blocks",
+    "write_recording",
+]

@@ -1,0 +1,698 @@
+"""Recordings: the telemetry table of SPEC §3, loaded, checked, cleaned and completed.
+
+A recording is one row per sample with ``t_s`` and the battery power (``power_W``, or
+``voltage_V`` and ``current_A``) and the motion (``x_m``/``y_m`` or ``v_mps``). Loading
+applies the rules below, in this order. Every rule that changes or drops something is
+reported as a :class:`DataIssue` (kind, count, first row, rule text): nothing is silent.
+Row numbers are 0-based positions in the input table (CSV line = row + 2).
+
+Rules
+-----
+1. ``file``: ``.csv`` / ``.csv.gz`` or ``.parquet`` / ``.pq``; anything else, an empty file
+   or a table without data rows is refused (RecordingError).
+2. ``missing_column``: ``t_s``; ``power_W`` or both ``voltage_V`` and ``current_A``;
+   ``x_m`` and ``y_m``, or ``v_mps``. A missing one is refused, naming it.
+3. ``text``: a value that is not a number in a numeric column of SPEC §3 is refused, naming
+   the column, the first bad row and the value (empty cells are missing values, not text).
+4. ``timestamps``: an infinite ``t_s``, ``|t_s| > 1e12`` (epoch milli/nanoseconds) or a span
+   of more than 1e7 s (116 days) is refused with a hint to convert to seconds. Epoch
+   *seconds* (first stamp beyond 1e7 s) are shifted so the first sample is at 0 s
+   (``rebased``).
+5. ``missing_value``: a row with a missing or non-finite value in a needed column (``t_s``,
+   the power columns used, the motion columns used) is dropped.
+6. ``backwards``: a row stamped earlier than the latest earlier row is dropped (running
+   maximum; after a clock reset the rows are dropped until time catches up).
+7. ``duplicate``: a row with the same stamp as the latest earlier row is dropped (the first
+   of equal stamps is kept).
+8. ``too_short``: fewer than 2 rows left is refused.
+9. ``optional_missing``: missing values in an optional numeric column are filled by linear
+   interpolation in time (held constant before the first and after the last known value);
+   a column with no value at all is removed.
+10. ``gap``: an interval longer than ``5 x`` the median interval is a gap. Gaps are kept but
+    never bridged: integrals (energy, distance) skip the gap interval, so energy over a gap
+    is neither recorded nor predicted (both sides of a comparison skip the same intervals),
+    while ``duration_s`` is the full span. Smoothing and derivatives work per gap-free piece.
+11. ``reverse``: a negative ``v_mps`` (driving backwards) is replaced by its magnitude, the
+    ground speed.
+12. ``import``: what an importer had to decide (e.g. a fallback channel), passed in
+    ``frame.attrs["import_notes"]``, is reported as it is.
+13. Derived channels (``derived``, reported with the rows they fill):
+    ``power_W = voltage_V * current_A``; positions -> speed: centred moving average of
+    ``x_m``/``y_m`` over ``SMOOTH_WINDOW_S`` = 0.5 s (counted in samples at the median
+    interval: at least 3, odd; ends padded by point reflection so a steady trend passes
+    unchanged), then central differences (``numpy.gradient`` on the time stamps); yaw rate: heading ``atan2(dy, dx)`` of the smoothed positions, unwrapped,
+    held while the speed is below ``STILL_SPEED_MPS``, central differences; acceleration:
+    central differences of the speed after the same moving average. Without positions
+    and without ``yaw_rate_radps`` the yaw rate is 0 (reported).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from orange_plan.errors import RecordingError
+from orange_plan.physics.state import MotionState
+
+SPEC_COLUMNS = (
+    "t_s", "power_W", "voltage_V", "current_A", "x_m", "y_m", "z_m", "v_mps",
+    "yaw_rate_radps", "accel_mps2", "soc", "ambient_C", "battery_C", "wind_mps",
+    "wind_from_deg", "payload_kg", "surface", "sensor_rate_Hz",
+)
+"""SPEC §3 columns in their documented order."""
+
+TEXT_COLUMNS = ("surface",)
+NUMERIC_COLUMNS = tuple(c for c in SPEC_COLUMNS if c not in TEXT_COLUMNS)
+
+MAX_ABS_TIME_S = 1e12
+"""Beyond this a stamp is epoch milli- or nanoseconds, not seconds [s]."""
+MAX_SPAN_S = 1e7
+"""Longest accepted recording (about 116 days) [s]."""
+REBASE_T0_S = 1e7
+"""A first stamp beyond this is taken as epoch seconds and shifted to 0 [s]."""
+GAP_FACTOR = 5.0
+"""An interval longer than this times the median interval is a gap [-]."""
+SMOOTH_WINDOW_S = 0.5
+"""Centred moving-average window before differentiating positions or speed [s]."""
+STILL_SPEED_MPS = 0.05
+"""Below this speed the heading of positions is noise: it is held [m/s]."""
+GRADE_WINDOW_M = 20.0
+"""Distance window of the moving average on elevation before taking the grade [m]."""
+
+READ_EXTENSIONS = (".csv", ".csv.gz", ".parquet", ".pq")
+
+
+@dataclass(frozen=True)
+class DataIssue:
+    """One validation finding and the rule applied to it.
+
+    Attributes
+    ----------
+    kind : rule id (``missing_value``, ``backwards``, ``duplicate``, ``gap``, ``derived``...)
+    count : number of rows (or intervals, for gaps) concerned
+    first_row : 0-based position of the first one in the input table (-1: whole column)
+    rule : what was done, one sentence
+    """
+
+    kind: str
+    count: int
+    first_row: int
+    rule: str
+
+    def __str__(self) -> str:
+        where = f", first at row {self.first_row}" if self.first_row >= 0 else ""
+        unit = "interval(s)" if self.kind == "gap" else "row(s)"
+        return f"{self.kind}: {self.count} {unit}{where}: {self.rule}"
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "count": self.count, "first_row": self.first_row,
+                "rule": self.rule}
+
+
+@dataclass(frozen=True, eq=False)  # eq=False: comparing DataFrames with == is ambiguous
+class Recording:
+    """A cleaned, time-ordered recording (SPEC §3 columns plus derived channels).
+
+    Attributes
+    ----------
+    frame : the table; always ``t_s`` [s], ``power_W`` [W], ``v_mps`` [m/s],
+        ``yaw_rate_radps`` [rad/s], ``accel_mps2`` [m/s^2]; ``x_m``, ``y_m``, ``z_m`` [m]
+        when recorded; other columns kept
+    source : where it came from (a path or a label)
+    issues : what validation found and which rule was applied
+    gap_threshold_s : intervals longer than this are gaps, skipped by integrals [s]
+    """
+
+    frame: pd.DataFrame
+    source: str
+    issues: tuple[DataIssue, ...] = ()
+    gap_threshold_s: float = float("inf")
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Sample times [s]."""
+        return self.frame["t_s"].to_numpy(float)
+
+    @property
+    def interval_ok(self) -> np.ndarray:
+        """True for each interval between consecutive samples that is not a gap (n-1,)."""
+        return np.diff(self.t_s) <= self.gap_threshold_s
+
+    @property
+    def duration_s(self) -> float:
+        """Span from the first to the last sample, gaps included [s]."""
+        t = self.t_s
+        return float(t[-1] - t[0])
+
+    @property
+    def energy_J(self) -> float:
+        """Recorded battery energy: trapezoid of ``power_W`` over time, gaps skipped [J]."""
+        return integrate_J(self, self.frame["power_W"].to_numpy(float))
+
+    @property
+    def distance_m(self) -> float:
+        """Distance travelled: trapezoid of ``v_mps`` over time, gaps skipped [m]."""
+        return integrate_J(self, self.frame["v_mps"].to_numpy(float))
+
+    def has(self, column: str) -> bool:
+        return column in self.frame.columns
+
+
+def integrate_J(recording: Recording, values) -> float:
+    """Trapezoid integral of per-sample ``values`` over the recording's time, gaps skipped.
+
+    Parameters
+    ----------
+    recording : gives the times and which intervals are gaps
+    values : one value per sample (e.g. power [W] -> energy [J])
+
+    Returns
+    -------
+    float
+        The integral (unit of ``values`` x s).
+    """
+    return float(cumulative_J(recording, values)[-1])
+
+
+def cumulative_J(recording: Recording, values) -> np.ndarray:
+    """Running trapezoid integral (first sample 0), gap intervals adding nothing (n,)."""
+    v = np.asarray(values, dtype=float)
+    t = recording.t_s
+    steps = 0.5 * (v[1:] + v[:-1]) * np.diff(t) * recording.interval_ok
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+# --- reading and writing ------------------------------------------------------------------
+
+
+def load_recording(path: str | Path) -> Recording:
+    """Read a CSV or Parquet recording and apply the checks of the module docstring.
+
+    Raises
+    ------
+    RecordingError
+        Unknown extension, unreadable or empty file, or a rule that refuses the data.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such recording file")
+    frame = _read_table(path)
+    return recording_from_frame(frame, source=str(path))
+
+
+def recording_extension(path: Path) -> str:
+    name = path.name.lower()
+    for ext in READ_EXTENSIONS:
+        if name.endswith(ext):
+            return ext
+    raise RecordingError(
+        f"{path}: unknown recording extension; use one of {', '.join(READ_EXTENSIONS)}"
+    )
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    ext = recording_extension(path)
+    try:
+        if ext in (".parquet", ".pq"):
+            return pd.read_parquet(path)
+        return pd.read_csv(path, skipinitialspace=True)
+    except pd.errors.EmptyDataError:
+        raise RecordingError(f"{path}: the recording file is empty") from None
+    except (pd.errors.ParserError, UnicodeDecodeError, OSError, ValueError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RecordingError(f"{path}: cannot read the recording: {first}") from None
+
+
+def write_recording(recording: Recording | pd.DataFrame, path: str | Path) -> Path:
+    """Write a recording (or a frame in SPEC §3 columns) atomically as CSV or Parquet.
+
+    The table goes to a temporary file in the same folder, then replaces ``path`` in one
+    step, so a reader never sees half a file.
+    """
+    path = Path(path)
+    ext = recording_extension(path)
+    frame = recording.frame if isinstance(recording, Recording) else recording
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        if ext in (".parquet", ".pq"):
+            frame.to_parquet(tmp, index=False)
+        else:
+            frame.to_csv(tmp, index=False, compression="gzip" if ext == ".csv.gz" else None)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+# --- validation -----------------------------------------------------------------------------
+
+
+def recording_from_frame(df: pd.DataFrame, source: str = "<frame>") -> Recording:
+    """Validate, clean and complete an in-memory table (rules of the module docstring).
+
+    Parameters
+    ----------
+    df : table with SPEC §3 columns (not modified)
+    source : label used in messages and kept on the Recording
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    RecordingError
+        One line naming the problem (missing column, text in a number, empty, bad stamps).
+    """
+    if len(df.columns) == 0 or len(df) == 0:
+        raise RecordingError(f"{source}: the recording has no data rows")
+    if len(df) < 2:
+        raise RecordingError(f"{source}: the recording has only one row; at least 2 are needed")
+    frame = df.reset_index(drop=True).copy()
+    frame.columns = [str(c).strip() for c in frame.columns]
+    _check_required(frame, source)
+    frame = _to_numbers(frame, source)
+    # Importers leave what they had to decide (e.g. a fallback channel) in attrs.
+    issues = [DataIssue("import", len(frame), -1, str(note))
+              for note in df.attrs.get("import_notes", ())]
+    frame = _check_timestamps(frame, source, issues)
+    frame = _drop_missing(frame, _needed_columns(frame), issues)
+    frame = _drop_unordered(frame, issues)
+    if len(frame) < 2:
+        raise RecordingError(
+            f"{source}: fewer than 2 usable rows remain after cleaning ("
+            + "; ".join(str(i) for i in issues) + ")"
+        )
+    frame = _fill_optional(frame, issues)
+    t = frame["t_s"].to_numpy(float)
+    gap_threshold_s = _gap_threshold(t, issues, frame["_row"].to_numpy())
+    pieces = _pieces(t, gap_threshold_s)
+    frame = _derive(frame, pieces, issues)
+    frame = _order_columns(frame.drop(columns="_row"))
+    return Recording(frame, source, tuple(issues), gap_threshold_s)
+
+
+def _check_required(frame: pd.DataFrame, source: str) -> None:
+    cols = set(frame.columns)
+    if "t_s" not in cols:
+        raise RecordingError(f"{source}: missing required column 't_s'" + _have(cols))
+    if "power_W" not in cols:
+        lacking = [c for c in ("voltage_V", "current_A") if c not in cols]
+        if lacking:
+            raise RecordingError(
+                f"{source}: missing column 'power_W' (or '{lacking[0]}' to derive it from "
+                "voltage_V x current_A)" + _have(cols)
+            )
+    if "v_mps" not in cols:
+        lacking = [c for c in ("x_m", "y_m") if c not in cols]
+        if lacking:
+            raise RecordingError(
+                f"{source}: missing column 'v_mps' (or '{lacking[0]}': speed needs x_m and "
+                "y_m)" + _have(cols)
+            )
+
+
+def _have(cols) -> str:
+    shown = sorted(cols)[:12]
+    return f"; columns present: {', '.join(shown)}" + (" ..." if len(cols) > 12 else "")
+
+
+def _to_numbers(frame: pd.DataFrame, source: str) -> pd.DataFrame:
+    for col in NUMERIC_COLUMNS:
+        if col not in frame.columns:
+            continue
+        raw = frame[col]
+        if pd.api.types.is_bool_dtype(raw):
+            raise RecordingError(f"{source}: column '{col}' holds true/false values, not numbers")
+        numbers = pd.to_numeric(raw, errors="coerce")
+        text = numbers.isna() & raw.notna() & (raw.astype(str).str.strip() != "")
+        if text.any():
+            row = int(np.flatnonzero(text.to_numpy())[0])
+            raise RecordingError(
+                f"{source}: column '{col}' holds text {str(raw.iloc[row])!r} at row {row} "
+                f"(CSV line {row + 2}); numbers expected"
+            )
+        frame[col] = numbers.astype(float)
+    frame["_row"] = np.arange(len(frame))
+    return frame
+
+
+def _check_timestamps(frame: pd.DataFrame, source: str, issues: list) -> pd.DataFrame:
+    t = frame["t_s"].to_numpy(float)
+    hint = "; t_s must be seconds since the start (convert ms or ns, or subtract the first stamp)"
+    if np.any(np.isinf(t)):
+        row = int(np.flatnonzero(np.isinf(t))[0])
+        raise RecordingError(f"{source}: t_s is infinite at row {row}{hint}")
+    finite = t[np.isfinite(t)]
+    if finite.size == 0:
+        raise RecordingError(f"{source}: t_s has no value at all")
+    if np.max(np.abs(finite)) > MAX_ABS_TIME_S:
+        row = int(np.flatnonzero(np.abs(t) > MAX_ABS_TIME_S)[0])
+        raise RecordingError(
+            f"{source}: t_s = {t[row]:.6g} at row {row} is too large for seconds "
+            f"(looks like epoch milli- or nanoseconds){hint}"
+        )
+    span = float(np.max(finite) - np.min(finite))
+    if span > MAX_SPAN_S:
+        raise RecordingError(
+            f"{source}: t_s spans {span:.3g} s (more than {MAX_SPAN_S:.0e} s){hint}"
+        )
+    t0 = float(finite[0])
+    if abs(t0) > REBASE_T0_S:
+        frame["t_s"] = frame["t_s"] - t0
+        issues.append(DataIssue("rebased", int(finite.size), 0,
+                                f"t_s starts at {t0:.6g} s (epoch seconds): shifted so the "
+                                "first sample is at 0 s"))
+    return frame
+
+
+def _needed_columns(frame: pd.DataFrame) -> list[str]:
+    needed = ["t_s"]
+    needed += ["power_W"] if "power_W" in frame.columns else ["voltage_V", "current_A"]
+    needed += ["v_mps"] if "v_mps" in frame.columns else ["x_m", "y_m"]
+    return needed
+
+
+def _drop_missing(frame: pd.DataFrame, needed: list[str], issues: list) -> pd.DataFrame:
+    values = frame[needed].to_numpy(float)
+    bad = ~np.all(np.isfinite(values), axis=1)
+    if bad.any():
+        cols = [c for c, b in zip(needed, (~np.isfinite(values)).any(axis=0)) if b]
+        issues.append(DataIssue("missing_value", int(bad.sum()), int(frame["_row"][bad].iloc[0]),
+                                f"rows with a missing or non-finite {', '.join(cols)} dropped"))
+    return frame[~bad].reset_index(drop=True)
+
+
+def _drop_unordered(frame: pd.DataFrame, issues: list) -> pd.DataFrame:
+    t = frame["t_s"].to_numpy(float)
+    latest = np.concatenate([[-np.inf], np.maximum.accumulate(t)[:-1]])
+    backwards, duplicate = t < latest, t == latest
+    rows = frame["_row"].to_numpy()
+    if backwards.any():
+        issues.append(DataIssue("backwards", int(backwards.sum()), int(rows[backwards][0]),
+                                "rows stamped earlier than an earlier row dropped"))
+    if duplicate.any():
+        issues.append(DataIssue("duplicate", int(duplicate.sum()), int(rows[duplicate][0]),
+                                "rows repeating the previous stamp dropped (first kept)"))
+    return frame[~(backwards | duplicate)].reset_index(drop=True)
+
+
+def _fill_optional(frame: pd.DataFrame, issues: list) -> pd.DataFrame:
+    needed = set(_needed_columns(frame))
+    t = frame["t_s"].to_numpy(float)
+    for col in NUMERIC_COLUMNS:
+        if col not in frame.columns or col in needed:
+            continue
+        v = frame[col].to_numpy(float)
+        ok = np.isfinite(v)
+        if ok.all():
+            continue
+        if not ok.any():
+            frame = frame.drop(columns=col)
+            issues.append(DataIssue("optional_missing", len(v), -1,
+                                    f"optional column {col} has no value: removed"))
+            continue
+        frame[col] = np.interp(t, t[ok], v[ok])
+        issues.append(DataIssue("optional_missing", int((~ok).sum()),
+                                int(frame["_row"][~ok].iloc[0]),
+                                f"missing {col} interpolated linearly in time"))
+    return frame
+
+
+def _gap_threshold(t: np.ndarray, issues: list, rows: np.ndarray) -> float:
+    dt = np.diff(t)
+    threshold = GAP_FACTOR * float(np.median(dt))
+    gaps = dt > threshold
+    if gaps.any():
+        first = int(np.flatnonzero(gaps)[0])
+        issues.append(DataIssue(
+            "gap", int(gaps.sum()), int(rows[first + 1]),
+            f"intervals longer than {GAP_FACTOR:g} x median ({threshold:.3g} s; longest "
+            f"{dt.max():.3g} s) are not bridged: integrals skip them",
+        ))
+    return threshold
+
+
+def _pieces(t: np.ndarray, gap_threshold_s: float) -> list[slice]:
+    """Gap-free runs of samples, as slices."""
+    cuts = np.flatnonzero(np.diff(t) > gap_threshold_s) + 1
+    bounds = [0, *cuts.tolist(), len(t)]
+    return [slice(a, b) for a, b in itertools.pairwise(bounds)]
+
+
+# --- derived channels ---------------------------------------------------------------------------
+
+
+def _window_samples(t: np.ndarray) -> int:
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    n = max(3, round(SMOOTH_WINDOW_S / dt)) if dt > 0 else 3
+    return n + 1 - n % 2  # odd, so the average is centred
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average over ``window`` samples (odd).
+
+    The ends are padded by point reflection (``2 v0 - v[k]``), so a steady trend (constant
+    speed, constant slope) passes unchanged up to the first and last sample.
+    """
+    v = np.asarray(values, dtype=float)
+    half = min(window // 2, len(v) - 1)
+    if half <= 0:
+        return v.copy()
+    head = 2.0 * v[0] - v[half:0:-1]
+    tail = 2.0 * v[-1] - v[-2:-half - 2:-1]
+    padded = np.concatenate([head, v, tail])
+    kernel = np.full(2 * half + 1, 1.0 / (2 * half + 1))
+    return np.convolve(padded, kernel, mode="valid")
+
+
+def _derivative(values: np.ndarray, t: np.ndarray, pieces: list[slice]) -> np.ndarray:
+    """Central differences per gap-free piece (one-sided at piece ends; 0 for 1 sample)."""
+    out = np.zeros_like(values, dtype=float)
+    for p in pieces:
+        if p.stop - p.start >= 2:
+            out[p] = np.gradient(values[p], t[p])
+    return out
+
+
+def _smooth_pieces(values: np.ndarray, window: int, pieces: list[slice]) -> np.ndarray:
+    out = np.array(values, dtype=float)
+    for p in pieces:
+        out[p] = smooth(values[p], window)
+    return out
+
+
+def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None) -> np.ndarray:
+    """Unwrapped heading of smoothed positions, held where the robot stands still [rad]."""
+    t = np.asarray(t_s, float)
+    pieces = pieces or [slice(0, len(t))]
+    w = _window_samples(t)
+    xs = _smooth_pieces(np.asarray(x_m, float), w, pieces)
+    ys = _smooth_pieces(np.asarray(y_m, float), w, pieces)
+    vx, vy = _derivative(xs, t, pieces), _derivative(ys, t, pieces)
+    speed = np.hypot(vx, vy) if speed_mps is None else np.asarray(speed_mps, float)
+    heading = pd.Series(np.where(speed > STILL_SPEED_MPS, np.arctan2(vy, vx), np.nan))
+    heading = heading.ffill().bfill().fillna(0.0).to_numpy()
+    return np.unwrap(heading)
+
+
+def _derive(frame: pd.DataFrame, pieces: list[slice], issues: list) -> pd.DataFrame:
+    t = frame["t_s"].to_numpy(float)
+    n, w = len(frame), _window_samples(t)
+    has_xy = "x_m" in frame.columns and "y_m" in frame.columns
+    if "power_W" not in frame.columns:
+        frame["power_W"] = frame["voltage_V"] * frame["current_A"]
+        issues.append(DataIssue("derived", n, 0, "power_W = voltage_V x current_A"))
+    if "v_mps" not in frame.columns:
+        xs = _smooth_pieces(frame["x_m"].to_numpy(float), w, pieces)
+        ys = _smooth_pieces(frame["y_m"].to_numpy(float), w, pieces)
+        frame["v_mps"] = np.hypot(_derivative(xs, t, pieces), _derivative(ys, t, pieces))
+        issues.append(DataIssue("derived", n, 0, f"v_mps from positions: {w}-sample centred "
+                                "moving average, then central differences"))
+    v = frame["v_mps"].to_numpy(float)
+    if (v < 0).any():
+        issues.append(DataIssue("reverse", int((v < 0).sum()), int(np.flatnonzero(v < 0)[0]),
+                                "negative v_mps (reversing) replaced by its magnitude"))
+        frame["v_mps"] = np.abs(v)
+    if "yaw_rate_radps" not in frame.columns:
+        if has_xy:
+            heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces,
+                                           frame["v_mps"].to_numpy(float))
+            frame["yaw_rate_radps"] = _derivative(heading, t, pieces)
+            rule = (f"yaw_rate_radps from the heading of positions ({w}-sample moving "
+                    f"average, unwrapped, held below {STILL_SPEED_MPS} m/s), central differences")
+        else:
+            frame["yaw_rate_radps"] = 0.0
+            rule = "no yaw_rate_radps and no positions: yaw rate set to 0"
+        issues.append(DataIssue("derived", n, 0, rule))
+    if "accel_mps2" not in frame.columns:
+        vs = _smooth_pieces(frame["v_mps"].to_numpy(float), w, pieces)
+        frame["accel_mps2"] = _derivative(vs, t, pieces)
+        issues.append(DataIssue("derived", n, 0, f"accel_mps2 from v_mps: {w}-sample centred "
+                                "moving average, then central differences"))
+    return frame
+
+
+def _order_columns(frame: pd.DataFrame) -> pd.DataFrame:
+    first = [c for c in SPEC_COLUMNS if c in frame.columns]
+    return frame[first + [c for c in frame.columns if c not in first]]
+
+
+# --- blocks and motion state ---------------------------------------------------------------------
+
+
+def split_blocks(recording: Recording, n_blocks: int) -> list[Recording]:
+    """Cut a recording into ``n_blocks`` contiguous blocks of equal time span.
+
+    Used for held-out evaluation (fit on some blocks, test on the others). Each block keeps
+    the parent's issues and gap threshold; a block with fewer than 2 samples is refused.
+    """
+    if int(n_blocks) != n_blocks or n_blocks < 1:
+        raise RecordingError(f"n_blocks = {n_blocks!r} must be a positive integer")
+    t = recording.t_s
+    edges = np.linspace(t[0], t[-1], int(n_blocks) + 1)
+    index = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, int(n_blocks) - 1)
+    blocks = []
+    for k in range(int(n_blocks)):
+        part = recording.frame[index == k].reset_index(drop=True)
+        if len(part) < 2:
+            raise RecordingError(
+                f"{recording.source}: block {k + 1} of {n_blocks} has {len(part)} sample(s); "
+                "use fewer blocks"
+            )
+        blocks.append(Recording(part, f"{recording.source}[block {k + 1}/{n_blocks}]",
+                                recording.issues, recording.gap_threshold_s))
+    return blocks
+
+
+def motion_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
+                 default_crr: float | None = None,
+                 grade_window_m: float = GRADE_WINDOW_M) -> MotionState:
+    """Per-sample MotionState of a recording, for ``EnergyModel.power_W`` and its Jacobian.
+
+    Parameters
+    ----------
+    recording : the cleaned recording
+    world : optional World: rolling coefficient and surface at (x, y), surface names, wind
+    sensor_rate_Hz : used where the recording has no ``sensor_rate_Hz`` column [Hz]
+    default_crr : rolling coefficient where nothing else says [-]; default the world's
+        default (map default surface, else robot.crr), else 0
+    grade_window_m : distance window of the moving average on ``z_m`` [m]
+
+    Returns
+    -------
+    MotionState
+        Arrays of one value per sample.
+
+    Notes
+    -----
+    * Grade: ``z_m`` resampled on distance travelled (trapezoid of ``v_mps``), moving
+      average over ``grade_window_m``, differentiated; ``sin_t = s/sqrt(1+s^2)``. No
+      ``z_m``: flat.
+    * Direction: heading of positions (held while standing); no positions: (1, 0).
+    * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological, SPEC §7), else the
+      world's wind, else none.
+    * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
+      looked up among the map's surfaces (unknown labels: default); else the default.
+    """
+    frame = recording.frame
+    n = len(frame)
+    t = recording.t_s
+    speed = np.abs(frame["v_mps"].to_numpy(float))
+    pieces = _pieces(t, recording.gap_threshold_s)
+    cos_t, sin_t = _grade(recording, speed, grade_window_m)
+    dir_x, dir_y = _direction(frame, t, pieces, speed)
+    wind_x, wind_y = _wind(frame, world, n)
+    crr, code = _rolling(frame, world, default_crr, n)
+    if "sensor_rate_Hz" in frame.columns:
+        rate = frame["sensor_rate_Hz"].to_numpy(float)
+    else:
+        rate = np.full(n, float(sensor_rate_Hz))
+    return MotionState(
+        speed_mps=speed, cos_t=cos_t, sin_t=sin_t, dir_x=dir_x, dir_y=dir_y,
+        wind_x_mps=wind_x, wind_y_mps=wind_y, crr=crr,
+        accel_mps2=frame["accel_mps2"].to_numpy(float),
+        yaw_rate_radps=frame["yaw_rate_radps"].to_numpy(float),
+        sensor_rate_Hz=rate, surface_code=code,
+    )
+
+
+def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:
+    """Cumulative distance travelled at each sample (trapezoid of speed, gaps skipped) [m]."""
+    speed = recording.frame["v_mps"].to_numpy(float) if speed_mps is None else speed_mps
+    return cumulative_J(recording, np.abs(speed))
+
+
+def _grade(recording: Recording, speed: np.ndarray, window_m: float):
+    n = len(speed)
+    if not recording.has("z_m"):
+        return np.ones(n), np.zeros(n)
+    s = distance_along_m(recording, speed)
+    z = recording.frame["z_m"].to_numpy(float)
+    if s[-1] <= 0:
+        return np.ones(n), np.zeros(n)
+    step_m = max(s[-1] / 200_000.0, min(0.5, window_m / 10.0))
+    grid = np.arange(0.0, s[-1] + step_m, step_m)
+    # Standing still gives many z at one distance; np.interp takes them in order, fine for
+    # a moving average over metres.
+    z_grid = np.interp(grid, s, z)
+    window = max(3, round(window_m / step_m))
+    z_smooth = smooth(z_grid, window + 1 - window % 2)
+    slope = np.interp(s, grid, np.gradient(z_smooth, step_m))
+    hyp = np.sqrt(1.0 + slope**2)
+    return 1.0 / hyp, slope / hyp
+
+
+def _direction(frame: pd.DataFrame, t, pieces, speed):
+    if "x_m" in frame.columns and "y_m" in frame.columns:
+        heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces, speed)
+        return np.cos(heading), np.sin(heading)
+    n = len(frame)
+    return np.ones(n), np.zeros(n)
+
+
+def _wind(frame: pd.DataFrame, world, n: int):
+    if "wind_mps" in frame.columns and "wind_from_deg" in frame.columns:
+        w = frame["wind_mps"].to_numpy(float)
+        frm = np.radians(frame["wind_from_deg"].to_numpy(float))
+        return -w * np.sin(frm), -w * np.cos(frm)
+    if world is not None:
+        wx, wy = world.wind_xy_mps
+        return np.full(n, float(wx)), np.full(n, float(wy))
+    return np.zeros(n), np.zeros(n)
+
+
+def _rolling(frame: pd.DataFrame, world, default_crr, n: int):
+    if default_crr is None:
+        default_crr = world.default_crr if world is not None else 0.0
+    crr = np.full(n, float(default_crr))
+    code = np.full(n, -1, dtype=int)
+    if world is None:
+        return crr, code
+    if "x_m" in frame.columns and "y_m" in frame.columns:
+        x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
+        code = world.surface_code_at(x, y)
+        crr = np.where(code >= 0, world.crr_at(x, y), float(default_crr))
+        return crr, code
+    if "surface" in frame.columns:
+        names = world.map.surface_names
+        crr_by_name = {s.name: s.crr for s in world.map.surfaces}  # last feature wins
+        labels = frame["surface"].astype(str).str.strip().to_numpy()
+        for name in names:
+            hit = np.char.lower(labels.astype(str)) == name.lower()
+            crr[hit] = crr_by_name[name]
+            code[hit] = names.index(name)
+        default_name = getattr(world, "default_surface_name", None)
+        if default_name:
+            hit = (np.char.lower(labels.astype(str)) == default_name.lower()) & (code < 0)
+            crr[hit] = float(default_crr)
+    return crr, code
