@@ -1,0 +1,95 @@
+"""``orange-plan bench``: benchmarks (``bench reach``: the planning core of issue #3)."""
+
+from __future__ import annotations
+
+import statistics
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.commands.reach import progress
+from orange_plan.errors import InputError
+
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks (timings are medians).")
+app.add_typer(bench_app, name="bench")
+
+TARGETS = {"roadmap_s": 2.5, "queries_s": 1.0, "roadmap_vs_grid": 1.03, "speed_1000_warm_s": 0.1,
+           "saving_vs_shortest": 0.20}
+
+
+def default_scenario() -> Path:
+    """The hilly example shipped with the repository (scenarios/kiwibot_campus.toml)."""
+    import orange_plan
+
+    return Path(orange_plan.__file__).resolve().parents[1] / "scenarios" / "kiwibot_campus.toml"
+
+
+@bench_app.command("reach")
+@handles_errors
+def bench_reach_cmd(
+    scenario: Annotated[Path | None, typer.Argument(
+        help="Scenario TOML (default: the hilly example, scenarios/kiwibot_campus.toml).")] = None,
+    repeats: Annotated[int, typer.Option(help="Repeats per timing (median reported).")] = 3,
+    vertices: Annotated[int, typer.Option(help="Roadmap vertices.")] = 5000,
+    bitstar_s: Annotated[float, typer.Option(
+        "--bitstar-s", help="BIT* refinement budget per pair [s] (0: skip).")] = 1.0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Roadmap/field build time, goal-query throughput, path energy vs a dense-grid
+    reference and vs the shortest path, and speed-optimiser times (issue #3 targets)."""
+    from orange_plan.context import load_context
+    from orange_plan.planning.bench import run_reach_bench
+
+    scenario = scenario or default_scenario()
+    if repeats < 1:
+        raise InputError(f"--repeats = {repeats} must be >= 1")
+    with progress(sys.stderr.isatty() and not as_json) as step:
+        ctx = load_context(scenario)
+        result = run_reach_bench(ctx, repeats=repeats, n_vertices=vertices,
+                                 bitstar_seconds=bitstar_s, step=step)
+    if as_json:
+        print_json(result.to_dict())
+        return
+    out.print(bench_table(result))
+
+
+def bench_table(r) -> Table:
+    """The README table: measured value, target, and a ratio that is <= 1 when the target is
+    met (measured/target for upper limits, target/measured for lower limits; worst pair for the
+    grid comparison)."""
+    t = Table(title=f"bench reach: {r.scenario} (median of {r.repeats})", header_style="bold")
+    for col in ("measure", "measured", "target", "ratio"):
+        t.add_column(col, justify="left" if col == "measure" else "right")
+    ratio = statistics.median(p.roadmap_vs_grid for p in r.pairs)
+    worst = max(p.roadmap_vs_grid for p in r.pairs)
+    saving = r.pairs[0].saving_vs_shortest
+    t.add_row(f"roadmap {r.n_vertices} vertices, {r.n_edges} edges + weights + 2 fields",
+              f"{r.roadmap_s:.2f} s", f"<= {TARGETS['roadmap_s']} s",
+              f"{r.roadmap_s / TARGETS['roadmap_s']:.2f}")
+    t.add_row(f"{r.goal_queries} goal queries", f"{r.queries_s:.3f} s",
+              f"<= {TARGETS['queries_s']} s", f"{r.queries_s / TARGETS['queries_s']:.2f}")
+    t.add_row(f"roadmap energy / grid reference ({r.grid_cell_m:g} m, 16-conn.), median of "
+              f"{len(r.pairs)} pairs (worst)", f"{ratio:.3f} ({worst:.3f})", "<= 1.03",
+              f"{worst / TARGETS['roadmap_vs_grid']:.2f}")
+    bits = [p.bitstar_J / p.grid_J for p in r.pairs if p.bitstar_J is not None]
+    if bits:
+        t.add_row(f"BIT* {r.bitstar_seconds:g} s alone / grid reference, median",
+                  f"{statistics.median(bits):.3f}", "(not a target)", "")
+    a, b = r.pairs[0].start_xy_m, r.pairs[0].goal_xy_m
+    t.add_row(f"energy saved vs shortest path, ({a[0]:g}, {a[1]:g}) -> ({b[0]:g}, {b[1]:g}) m",
+              f"{saving:.1%}", ">= 20 %",
+              f"{TARGETS['saving_vs_shortest'] / max(saving, 1e-9):.2f}")
+    t.add_row("energy saved vs shortest path, all pairs (min..max)",
+              f"{min(p.saving_vs_shortest for p in r.pairs):.1%}.."
+              f"{max(p.saving_vs_shortest for p in r.pairs):.1%}", "", "")
+    for n, s in r.speed_s.items():
+        target = f"<= {TARGETS['speed_1000_warm_s'] * 1e3:.0f} ms" if n == 1000 else ""
+        ratio_txt = f"{s['warm_s'] / TARGETS['speed_1000_warm_s']:.2f}" if n == 1000 else ""
+        t.add_row(f"speed profile N = {n} warm (cold incl. build), {s['iterations']} IPOPT it.",
+                  f"{s['warm_s'] * 1e3:.1f} ms ({s['cold_s'] * 1e3:.0f} ms)", target, ratio_txt)
+    t.add_row(f"dense-grid reference build ({r.grid_cell_m:g} m)", f"{r.grid_s:.1f} s", "", "")
+    return t

@@ -1,0 +1,133 @@
+"""``orange-plan reach``: which goals can be visited with the robot still getting home."""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from orange_plan.cli import JsonOpt, ScenarioArg, app, err, handles_errors, out, print_json
+from orange_plan.errors import InputError
+
+
+def parse_xy(text: str, option: str) -> tuple[float, float]:
+    """``"X,Y"`` -> (x, y) in metres; InputError naming the option otherwise."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise InputError(f"{option} must be X,Y in metres (e.g. 120,45.5), got {text!r}") from None
+    if not all(map(lambda v: v == v and abs(v) != float("inf"), (x, y))):
+        raise InputError(f"{option} must be finite, got {text!r}")
+    return x, y
+
+
+@contextmanager
+def progress(enabled: bool):
+    """A transient rich progress display on stderr (only on a terminal, never with --json)."""
+    if not enabled:
+        yield lambda description: None
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                  console=err, transient=True) as bar:
+        task = bar.add_task("starting", total=None)
+        yield lambda description: bar.update(task, description=description)
+
+
+@app.command("reach")
+@handles_errors
+def reach_cmd(
+    scenario: ScenarioArg,
+    from_xy: Annotated[str | None, typer.Option(
+        "--from", help="Robot position X,Y in metres (default: home).")] = None,
+    energy_used_J: Annotated[float, typer.Option(
+        "--energy-used-J", help="Battery energy already used [J].")] = 0.0,
+    goals: Annotated[Path | None, typer.Option(
+        "--goals", help="CSV with columns x_m, y_m (optional name).")] = None,
+    png: Annotated[Path | None, typer.Option(
+        "--png", help="Write a PNG of the feasible region (colour = margin).")] = None,
+    vertices: Annotated[int, typer.Option(help="Roadmap vertices.")] = 5000,
+    seed: Annotated[int, typer.Option(help="Roadmap random seed.")] = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Which goals can be visited and the robot still get home with its reserve (SPEC §5)."""
+    from orange_plan.context import load_context
+    from orange_plan.planning.goals import load_goals
+    from orange_plan.planning.reach import home_status, prepare_reach, query_goals, query_points
+
+    start = parse_xy(from_xy, "--from") if from_xy is not None else None
+    goal_set = load_goals(goals) if goals is not None else None
+    if png is not None and png.suffix.lower() != ".png":
+        raise InputError(f"--png {png}: the file name must end in .png")
+    with progress(sys.stderr.isatty() and not as_json) as step:
+        step("loading scenario")
+        ctx = load_context(scenario)
+        step(f"building the energy roadmap ({vertices} vertices)")
+        reach = prepare_reach(ctx, start, energy_used_J, n_vertices=vertices, seed=seed)
+        home = home_status(reach)
+        step("querying goals")
+        results = [] if goal_set is None else query_goals(reach, goal_set.xy_m, goal_set.names)
+        if png is not None:
+            from orange_plan.viz.reach_plot import field_grid, plot_reach
+
+            step("drawing the margin field")
+            xs, ys, points = field_grid(ctx.world)
+            field = query_points(reach, points)
+            title = (f"{ctx.scenario.name}: reach at {reach.exact.speed_mps:.2f} m/s; energy used "
+                     f"{energy_used_J / 1e3:,.1f} of {reach.energy_available_J / 1e3:,.1f} kJ, "
+                     f"reserve {_reserve_text(ctx.scenario.mission.reserve)}")
+            plot_reach(reach, field, xs, ys, results, png, title)
+    report = {
+        "home_xy_m": list(reach.home_xy_m),
+        "from_xy_m": list(reach.start_xy_m),
+        "energy_available_J": reach.energy_available_J,
+        "energy_used_J": reach.energy_used_J,
+        "reserve_J": home.reserve_J,
+        "home_reachable": bool(home.reachable),
+        "energy_to_home_J": home.energy_to_home_J,
+        "speed_mps": reach.exact.speed_mps,
+        "goals": [g.to_dict() for g in results],
+    }
+    if as_json:
+        print_json(report)
+        return
+    _print_report(ctx.scenario.name, report, png)
+
+
+def _reserve_text(reserve) -> str:
+    return {"fraction": f"{reserve.value:g} of E_avail", "energy_J": f"{reserve.value:g} J",
+            "confidence": f"p = {reserve.value:g}"}[reserve.kind]
+
+
+def _kj(value) -> str:
+    return "-" if value is None else f"{value / 1e3:,.2f}"
+
+
+def _print_report(name: str, report: dict, png) -> None:
+    out.print(f"[bold]{name}[/]: from ({report['from_xy_m'][0]:g}, {report['from_xy_m'][1]:g}) m, "
+              f"{report['energy_used_J'] / 1e3:,.2f} kJ used of "
+              f"{report['energy_available_J'] / 1e3:,.2f} kJ, cruise {report['speed_mps']:.2f} m/s")
+    if report["home_reachable"]:
+        out.print(f"home reachable: {_kj(report['energy_to_home_J'])} kJ to home "
+                  f"+ {_kj(report['reserve_J'])} kJ reserve")
+    else:
+        out.print("[red]home NOT reachable[/] from the start with the reserve")
+    if report["goals"]:
+        table = Table(show_header=True, header_style="bold")
+        for col in ("goal", "x m", "y m", "feasible", "to goal kJ", "home kJ", "margin kJ",
+                    "note"):
+            table.add_column(col, justify="left" if col in ("goal", "note") else "right")
+        for i, g in enumerate(report["goals"]):
+            table.add_row(g.get("name") or str(i), f"{g['x_m']:g}", f"{g['y_m']:g}",
+                          "yes" if g["feasible"] else "[red]no[/]", _kj(g["energy_to_goal_J"]),
+                          _kj(g["energy_goal_to_home_J"]), _kj(g["margin_J"]),
+                          g.get("reason", ""))
+        out.print(table)
+    if png is not None:
+        out.print(f"wrote {png}")

@@ -1,0 +1,1 @@
+"""Planning: energy roadmap, paths, speed profiles and reachability."""

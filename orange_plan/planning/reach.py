@@ -1,0 +1,381 @@
+"""Reachability: which goals can be visited with the robot still getting home (SPEC §5, §7).
+
+Problem statement (kept apart from how it is solved): a goal ``g`` is feasible from a start
+``s`` (home, or the robot's position after ``energy_used_J``) when a drivable path
+``s -> g -> home`` exists with
+
+    energy_used_J + E(s -> g) + E(g -> home) + reserve_J <= energy_available_J
+
+where ``E`` is the battery energy of SPEC §7 at the cruise speed and the reserve follows the
+scenario's ``mission.reserve``. How it is solved: an energy roadmap (``roadmap``), Dijkstra
+fields from the start and to home, each goal joined to its nearest roadmap vertices by
+collision-checked straight segments; the chosen round trip is then re-evaluated exactly with
+``path_energy`` and that exact energy decides feasibility. So a goal called feasible always has
+a drivable round trip whose energy, as reported, fits (the roadmap may miss a cheaper one:
+answers are conservative).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+from scipy.stats import norm
+
+from orange_plan.errors import InputError
+from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
+from orange_plan.physics.range import simplified_range
+from orange_plan.planning.paths import clean_polyline, evaluate_path, path_gradient
+from orange_plan.planning.roadmap import (
+    EdgeCostContext,
+    EnergyField,
+    Roadmap,
+    add_vertices,
+    build_roadmap,
+    energy_field,
+)
+from orange_plan.world.rasters import TerrainRasters, build_rasters
+
+K_NEAREST = 12
+"""Roadmap vertices a goal is joined to (the best collision-free one is used)."""
+
+
+# --- reserve (SPEC §7) ---------------------------------------------------------------------
+
+
+def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
+    """Energy kept back for getting home [J].
+
+    Parameters
+    ----------
+    reserve : scenario ``mission.reserve`` (kind ``fraction``, ``energy_J`` or ``confidence``)
+    energy_available_J : usable battery energy E_avail [J]
+    variance_J2 : variance ``g' Cov g`` of the round trip's energy (model parameter
+        uncertainty) [J^2]; any shape
+
+    Notes
+    -----
+    ``confidence = p``: the round-trip energy is taken as normal with the model's parameter
+    variance, so ``z_p sqrt(g' Cov g)`` above the planned energy is enough with probability p
+    (DESIGN.md: the reserve is sized by the model, not a magic margin).
+    """
+    var = np.asarray(variance_J2, float)
+    if reserve.kind == "fraction":
+        return np.full(var.shape, reserve.value * energy_available_J)
+    if reserve.kind == "energy_J":
+        return np.full(var.shape, float(reserve.value))
+    return norm.ppf(reserve.value) * np.sqrt(np.clip(var, 0.0, None))
+
+
+# --- set-up -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Reachability:
+    """Roadmap fields for one start and home (what every goal query reads).
+
+    Attributes
+    ----------
+    fast : edge costs on the terrain rasters (roadmap weights, the field image)
+    exact : edge costs on exact terrain (goal connections, reported energies)
+    roadmap : energy roadmap with home and start as vertices
+    from_start, to_home : Dijkstra fields
+    start_index : start vertex (== roadmap.home_index without ``--from``)
+    energy_available_J, energy_used_J : usable battery energy, energy spent so far [J]
+    reserve : the scenario's reserve rule
+    """
+
+    fast: EdgeCostContext
+    exact: EdgeCostContext
+    terrain: TerrainRasters
+    roadmap: Roadmap
+    from_start: EnergyField
+    to_home: EnergyField
+    start_index: int
+    energy_available_J: float
+    energy_used_J: float
+    reserve: object
+
+    @property
+    def home_xy_m(self) -> tuple[float, float]:
+        return tuple(float(v) for v in self.roadmap.xy_m[self.roadmap.home_index])
+
+    @property
+    def start_xy_m(self) -> tuple[float, float]:
+        return tuple(float(v) for v in self.roadmap.xy_m[self.start_index])
+
+
+def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None):
+    """(fast, exact) edge-cost contexts of a scenario at the cruise speed.
+
+    The cruise speed defaults to the simplified ORangE optimum ``v_opt`` (Eq. 6). The fast
+    context samples terrain on the rasters once per elevation cell (or raster cell on flat
+    maps): on the hilly example this changed roadmap path energies by < 0.5 % against half-cell
+    steps at half the cost. The exact one uses the World and the SPEC §7 sub-step.
+    """
+    sc = ctx.scenario
+    if speed_mps is None:
+        speed_mps = simplified_range(sc, ctx.model, ctx.world.default_crr).v_opt_mps
+    if not sc.robot.v_min_mps <= speed_mps <= sc.robot.v_max_mps:
+        raise InputError(f"speed {speed_mps:g} m/s is outside [v_min_mps, v_max_mps] = "
+                         f"[{sc.robot.v_min_mps:g}, {sc.robot.v_max_mps:g}]")
+    dem = ctx.world.map.elevation
+    step = max(MAX_STEP_M, dem.cell_m if dem is not None else terrain.cell_m)
+    common = (ctx.model, ctx.world)
+    rest = (float(speed_mps), ctx.duty_cycle, ctx.sensor_rate_Hz)
+    gradient = sc.mission.reserve.kind == "confidence"
+    return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient),
+            EdgeCostContext(*common, ctx.world, *rest, step_m=None, with_gradient=gradient))
+
+
+def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
+                  seed: int = 0, speed_mps: float | None = None,
+                  terrain: TerrainRasters | None = None) -> Reachability:
+    """Build the roadmap and the two fields for reach queries.
+
+    Parameters
+    ----------
+    ctx : Context (scenario, world, model)
+    start_xy : robot position [m]; default home
+    energy_used_J : energy already spent [J] (>= 0)
+    n_vertices : roadmap size
+    seed : OMPL seed
+    speed_mps : cruise speed [m/s]; default v_opt
+    terrain : prebuilt rasters (else built here)
+
+    Raises
+    ------
+    InputError
+        If ``energy_used_J`` is negative or exceeds the available energy, or the start is not
+        in free space.
+    """
+    available = ctx.scenario.battery.usable_J
+    if not (np.isfinite(energy_used_J) and 0.0 <= energy_used_J <= available):
+        raise InputError(f"--energy-used-J = {energy_used_J:g} must be in [0, {available:.6g}] J "
+                         "(the usable battery energy)")
+    if start_xy is not None:
+        start_xy = np.asarray(start_xy, float).reshape(2)
+        if not bool(ctx.world.is_free(*start_xy)):
+            raise InputError(f"--from ({start_xy[0]:g}, {start_xy[1]:g}) m is outside the boundary "
+                             "or inside an obstacle / no-go zone")
+    terrain = build_rasters(ctx.world) if terrain is None else terrain
+    fast, exact = cost_contexts(ctx, terrain, speed_mps)
+    roadmap = build_roadmap(fast, n_vertices, seed)
+    start = roadmap.home_index
+    if start_xy is not None and np.hypot(*(start_xy - ctx.world.home_xy_m)) > 1e-9:
+        roadmap = add_vertices(fast, roadmap, start_xy[None, :])
+        start = roadmap.n_vertices - 1
+    from_start = energy_field(roadmap, start, towards=False)
+    to_home = energy_field(roadmap, roadmap.home_index, towards=True)
+    return Reachability(fast, exact, terrain, roadmap, from_start, to_home, start, available,
+                        float(energy_used_J), ctx.scenario.mission.reserve)
+
+
+# --- exact goal queries ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GoalResult:
+    """Reach answer for one goal (energies None where there is no path).
+
+    Attributes
+    ----------
+    x_m, y_m : the goal [m]
+    valid : inside the boundary and outside every keep-out zone
+    feasible : the round trip with its reserve fits the remaining energy
+    energy_to_goal_J : start -> goal along the reported path [J]
+    energy_goal_to_home_J : goal -> home (turning at the goal included) [J]
+    reserve_J : reserve for this round trip [J]
+    margin_J : available - used - to goal - to home - reserve [J]
+    path_xy_m : the round trip start -> goal -> home, (n, 2) [m]
+    reason : why not valid / not feasible
+    """
+
+    x_m: float
+    y_m: float
+    name: str | None
+    valid: bool
+    feasible: bool
+    energy_to_goal_J: float | None = None
+    energy_goal_to_home_J: float | None = None
+    reserve_J: float | None = None
+    margin_J: float | None = None
+    path_xy_m: np.ndarray | None = None
+    reason: str | None = None
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("path_xy_m")
+        for key in ("name", "reason"):
+            if d[key] is None:
+                d.pop(key)
+        return d
+
+
+@dataclass(frozen=True)
+class HomeStatus:
+    """Whether the robot can get home from its start, and at what energy."""
+
+    reachable: bool
+    energy_to_home_J: float | None
+    reserve_J: float | None
+    margin_J: float | None
+    path_xy_m: np.ndarray | None
+
+
+def home_status(reach: Reachability) -> HomeStatus:
+    """Exact energy of the best roadmap path start -> home and whether it fits."""
+    if reach.start_index == reach.roadmap.home_index:
+        xy = np.array([reach.home_xy_m, reach.home_xy_m])
+        res = _reserve_of(reach, xy)
+        margin = reach.energy_available_J - reach.energy_used_J - res
+        return HomeStatus(margin >= 0, 0.0, res, margin, xy)
+    if not np.isfinite(reach.to_home.energy_J[reach.start_index]):
+        return HomeStatus(False, None, None, None, None)
+    xy = reach.roadmap.xy_m[reach.to_home.path(reach.start_index)]
+    path = evaluate_path(reach.exact, xy, "roadmap energy")
+    res = _reserve_of(reach, path.xy_m)
+    margin = reach.energy_available_J - reach.energy_used_J - path.energy_J - res
+    return HomeStatus(margin >= 0, path.energy_J, res, margin, path.xy_m)
+
+
+def _reserve_of(reach: Reachability, xy) -> float:
+    var = 0.0
+    if reach.reserve.kind == "confidence":
+        var = reach.exact.model.energy_variance_J2(path_gradient(reach.exact, xy))
+    return float(reserve_J(reach.reserve, reach.energy_available_J, var))
+
+
+def invalid_reason(world, x_m: float, y_m: float) -> str | None:
+    """None for a point in free space, else why not."""
+    if not bool(shapely.intersects_xy(world.map.boundary, x_m, y_m)):
+        return "outside the boundary"
+    if not bool(world.is_free(x_m, y_m)):
+        return "inside an obstacle or no-go zone"
+    return None
+
+
+def query_goals(reach: Reachability, goals_xy, names=None) -> list[GoalResult]:
+    """Exact reach answers for a few goals (collision checks and energies on exact terrain).
+
+    Each goal is joined to its ``K_NEAREST`` roadmap vertices (and to the start and home) by
+    exactly checked straight segments; the cheapest way in and the cheapest way out are taken,
+    and the whole round trip start -> goal -> home is re-evaluated with ``path_energy``.
+    """
+    goals = np.atleast_2d(np.asarray(goals_xy, float)).reshape(-1, 2)
+    names = [None] * len(goals) if names is None else list(names)
+    home = home_status(reach)
+    tree = cKDTree(reach.roadmap.xy_m)
+    results = []
+    for (x, y), name in zip(goals.tolist(), names):
+        reason = invalid_reason(reach.exact.world, x, y)
+        if reason is not None:
+            results.append(GoalResult(x, y, name, False, False, reason=reason))
+        elif not home.reachable and home.energy_to_home_J is None:
+            results.append(GoalResult(x, y, name, True, False, reason="home is unreachable "
+                                      "from the start"))
+        else:
+            results.append(_query_one(reach, tree, x, y, name))
+    return results
+
+
+def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> GoalResult:
+    rm = reach.roadmap
+    goal = np.array([x, y])
+    k = min(K_NEAREST, rm.n_vertices)
+    _, near = tree.query(goal, k=k)
+    cand = np.unique(np.r_[np.atleast_1d(near), reach.start_index, rm.home_index])
+    ok = reach.exact.world.segments_free(np.repeat(goal[None], len(cand), 0), rm.xy_m[cand])
+    cand = cand[ok]
+    if len(cand) == 0:
+        return GoalResult(x, y, name, True, False, reason="no collision-free connection to the "
+                          "roadmap")
+    e_in, e_out, _, _ = reach.exact.costs(rm.xy_m[cand], np.repeat(goal[None], len(cand), 0))
+    via_in = reach.from_start.energy_J[cand] + e_in
+    via_out = e_out + reach.to_home.energy_J[cand]
+    if not (np.isfinite(via_in.min()) and np.isfinite(via_out.min())):
+        return GoalResult(x, y, name, True, False, reason="not connected to the start and home")
+    a, b = int(cand[np.argmin(via_in)]), int(cand[np.argmin(via_out)])
+    out = dedupe(np.vstack([rm.xy_m[reach.from_start.path(a)], goal]))
+    back = np.vstack([goal, rm.xy_m[reach.to_home.path(b)]])
+    trip = clean_polyline(dedupe(np.vstack([out, back])))
+    c = reach.exact
+    cumulative = path_energy(c.model, c.world, trip, c.speed_mps, c.duty_cycle,
+                             c.sensor_rate_Hz).cumulative_J
+    # Turning at the goal is charged to the way back (path_energy charges a vertex's turn to
+    # the segment leaving it), so the two legs add up to the round trip exactly.
+    to_goal = float(cumulative[len(out) - 1])
+    total = float(cumulative[-1])
+    res = _reserve_of(reach, trip)
+    margin = reach.energy_available_J - reach.energy_used_J - total - res
+    feasible = bool(margin >= 0)
+    return GoalResult(x, y, name, True, feasible, to_goal, total - to_goal, res, margin, trip,
+                      None if feasible else "round trip and reserve exceed the remaining energy")
+
+
+def dedupe(xy) -> np.ndarray:
+    """Drop consecutive duplicate vertices (no padding)."""
+    p = np.asarray(xy, float).reshape(-1, 2)
+    return p[np.r_[True, np.hypot(*np.diff(p, axis=0).T) > 1e-9]]
+
+
+# --- fast field over many points ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PointsReach:
+    """Fast reach figures for many points (raster terrain, no turning at the goal).
+
+    Attributes
+    ----------
+    energy_to_goal_J, energy_goal_to_home_J, reserve_J, margin_J : per point [J] (inf / nan
+        where unreachable)
+    valid : point in free space (raster)
+    """
+
+    energy_to_goal_J: np.ndarray
+    energy_goal_to_home_J: np.ndarray
+    reserve_J: np.ndarray
+    margin_J: np.ndarray
+    valid: np.ndarray
+
+    @property
+    def feasible(self) -> np.ndarray:
+        return self.valid & (self.margin_J >= 0)
+
+
+def query_points(reach: Reachability, points_xy, k: int = 8) -> PointsReach:
+    """Vectorised reach figures for many points (the field image, throughput benchmarks).
+
+    Approximate where the exact answer differs: occupancy, crr and collision tests come from
+    the rasters and turning at the goal is not charged. ``query_goals`` gives exact answers.
+    """
+    pts = np.atleast_2d(np.asarray(points_xy, float))
+    rm, fast = reach.roadmap, reach.fast
+    n = len(pts)
+    k = min(k, rm.n_vertices)
+    valid = reach.terrain.is_free(pts[:, 0], pts[:, 1])
+    _, near = cKDTree(rm.xy_m).query(pts, k=k)
+    near = near.reshape(n, k)
+    a = np.repeat(pts, k, axis=0)
+    b = rm.xy_m[near.ravel()]
+    ok = reach.terrain.segments_free(a, b).reshape(n, k) & valid[:, None]
+    c_in, c_out, j_in, j_out = fast.costs(b, a)
+    e_in = reach.from_start.energy_J[near] + c_in.reshape(n, k)
+    e_out = c_out.reshape(n, k) + reach.to_home.energy_J[near]
+    e_in, e_out = np.where(ok, e_in, np.inf), np.where(ok, e_out, np.inf)
+    bi, bo = np.argmin(e_in, axis=1), np.argmin(e_out, axis=1)
+    rows = np.arange(n)
+    to_goal, to_home = e_in[rows, bi], e_out[rows, bo]
+    var = np.zeros(n)
+    if reach.reserve.kind == "confidence":
+        kk = j_in.shape[1]
+        g = (reach.from_start.gradient[near[rows, bi]] + j_in.reshape(n, k, kk)[rows, bi]
+             + j_out.reshape(n, k, kk)[rows, bo] + reach.to_home.gradient[near[rows, bo]])
+        var = fast.model.energy_variance_J2(g)
+    res = reserve_J(reach.reserve, reach.energy_available_J, var)
+    with np.errstate(invalid="ignore"):
+        margin = reach.energy_available_J - reach.energy_used_J - to_goal - to_home - res
+    return PointsReach(to_goal, to_home, res, margin, valid)

@@ -1,0 +1,277 @@
+"""Speed profile along a path: per-piece speeds minimising energy (or time), CasADi + IPOPT.
+
+Problem statement (``SpeedProblem``): a path cut into N straight pieces i with length L_i,
+grade, direction and rolling coefficient; choose speeds v_i to
+
+    minimise   sum_i E_i(v_i)                      (objective "energy", SPEC §7 energy)
+    or         sum_i L_i / (v_i D)                 (objective "time": mission time)
+    subject to v_min <= v_i <= v_max
+               |v_{i+1}^2 - v_i^2| <= 2 a_max L_i  (constant-acceleration limit)
+               sum_i L_i / (v_i D) <= T            (optional time limit, energy objective)
+               sum_i E_i(v_i) <= E_budget          (energy budget, time objective)
+
+``E_i`` is ``EnergyModel.segment_energy`` evaluated on CasADi MX symbols: the very term code
+the planner evaluates on numpy arrays (DESIGN.md: no physics written twice).
+
+How it is solved (``SpeedSolver``): one parametric MX ``nlpsol`` (IPOPT) per (N, objective),
+built once and cached; the pieces' geometry is the parameter vector, so a new path of the
+same N only re-solves, warm-started from the previous speeds (notes §7).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from orange_plan.errors import InputError, PlanningError
+from orange_plan.physics.pathcost import path_energy, subdivide
+from orange_plan.physics.state import MotionState
+
+FIELDS = ("length_m", "cos_t", "sin_t", "dir_x", "dir_y", "crr", "surface_code")
+
+
+@dataclass(frozen=True)
+class PathPieces:
+    """A path cut into N straight pieces with their terrain (the speed problem's data).
+
+    Attributes
+    ----------
+    xy_m : the N + 1 piece end points [m]
+    length_m : 3-D piece length [m]; cos_t, sin_t : grade [-]; dir_x, dir_y : direction [-]
+    crr : rolling coefficient at the piece midpoint [-]; surface_code : surface there
+    """
+
+    xy_m: np.ndarray
+    length_m: np.ndarray
+    cos_t: np.ndarray
+    sin_t: np.ndarray
+    dir_x: np.ndarray
+    dir_y: np.ndarray
+    crr: np.ndarray
+    surface_code: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.length_m)
+
+
+def cut_path(world, path_xy, n_pieces: int) -> PathPieces:
+    """Resample a polyline into ``n_pieces`` pieces of (nearly) equal length, keeping corners.
+
+    Each original segment gets a number of pieces proportional to its length (at least one),
+    so the pieces follow the path exactly.
+    """
+    p = np.asarray(path_xy, float)
+    seg = np.hypot(*np.diff(p, axis=0).T)
+    keep = seg > 1e-9
+    if not keep.any():
+        raise InputError("the path has zero length")
+    p = np.vstack([p[:-1][keep], p[-1]])
+    seg = seg[keep]
+    if n_pieces < len(seg):
+        raise InputError(f"n_pieces = {n_pieces} is fewer than the path's {len(seg)} segments")
+    count = np.maximum(1, np.floor(seg / seg.sum() * n_pieces).astype(int))
+    while count.sum() < n_pieces:  # hand the remainder to the longest pieces
+        count[np.argmax(seg / count)] += 1
+    while count.sum() > n_pieces:
+        count[np.argmax(np.where(count > 1, seg / count, -1))] -= 1
+    pts = [p[0]]
+    for a, b, c in zip(p[:-1], p[1:], count):
+        t = np.arange(1, c + 1)[:, None] / c
+        pts.extend(a + (b - a) * t)
+    xy = np.array(pts)
+    steps = subdivide(world, xy[:-1], xy[1:], step_m=np.inf)  # one step per piece
+    safe = np.where(steps.length_m > 0, steps.length_m, 1.0)
+    return PathPieces(xy, steps.length_m, steps.horiz_m / safe, steps.dz_m / safe, steps.dir_x,
+                      steps.dir_y, steps.crr, steps.surface_code.astype(float))
+
+
+@dataclass(frozen=True)
+class SpeedProblem:
+    """What the speed optimiser is asked (the statement, apart from how it is solved).
+
+    Attributes
+    ----------
+    pieces : the path's pieces
+    v_min_mps, v_max_mps : speed bounds [m/s]
+    accel_max_mps2 : acceleration / deceleration limit [m/s^2]
+    duty_cycle : D [-]; sensor_rate_Hz : [Hz]; wind_xy_mps : [m/s]
+    objective : "energy" or "time"
+    time_limit_s : mission-time limit for "energy" (None: none) [s]
+    energy_budget_J : energy limit for "time" [J]
+    """
+
+    pieces: PathPieces
+    v_min_mps: float
+    v_max_mps: float
+    accel_max_mps2: float
+    duty_cycle: float
+    sensor_rate_Hz: float = 0.0
+    wind_xy_mps: tuple[float, float] = (0.0, 0.0)
+    objective: str = "energy"
+    time_limit_s: float | None = None
+    energy_budget_J: float | None = None
+
+    def __post_init__(self):
+        if self.objective not in ("energy", "time"):
+            raise InputError(f"objective = {self.objective!r} must be 'energy' or 'time'")
+        if not 0 < self.v_min_mps <= self.v_max_mps:
+            raise InputError(f"need 0 < v_min_mps <= v_max_mps, got {self.v_min_mps}, "
+                             f"{self.v_max_mps}")
+        if not self.accel_max_mps2 > 0:
+            raise InputError(f"accel_max_mps2 = {self.accel_max_mps2} must be > 0")
+        if self.objective == "time" and self.energy_budget_J is None:
+            raise InputError("objective 'time' needs an energy_budget_J")
+        fastest = float(np.sum(self.pieces.length_m) / (self.v_max_mps * self.duty_cycle))
+        if self.time_limit_s is not None and self.time_limit_s < fastest:
+            raise InputError(f"time_limit_s = {self.time_limit_s:g} s is shorter than the path "
+                             f"takes at v_max ({fastest:.6g} s)")
+
+
+@dataclass(frozen=True)
+class SpeedProfile:
+    """Optimised speeds and the exact figures of the resulting motion.
+
+    Attributes
+    ----------
+    xy_m : piece end points (N + 1, 2) [m]; speed_mps : per piece (N,) [m/s]
+    energy_J : ``path_energy`` at these speeds (exact terrain, SPEC §7) [J]
+    duration_s : mission time [s]
+    iterations : IPOPT iterations; solve_seconds : wall-clock of the solve [s]
+    pieces_energy_J : energy as the NLP sees it (one step per piece) [J]; ``energy_J`` re-
+        integrates with the SPEC §7 sub-steps when a World is given
+    """
+
+    xy_m: np.ndarray
+    speed_mps: np.ndarray
+    energy_J: float
+    duration_s: float
+    iterations: int
+    solve_seconds: float
+    pieces_energy_J: float
+
+
+class SpeedSolver:
+    """Builds one parametric IPOPT solver per (N, objective) and warm-starts it.
+
+    Parameters
+    ----------
+    model : the EnergyModel (its terms are evaluated on MX symbols)
+    ipopt_options : extra IPOPT options
+    """
+
+    def __init__(self, model, ipopt_options: dict | None = None):
+        self.model = model
+        self.options = dict(ipopt_options or {})
+        self._solvers: dict = {}
+        self._last: dict = {}
+
+    def _solver(self, problem: SpeedProblem):
+        import casadi as ca
+
+        key = (problem.pieces.n, problem.objective, problem.duty_cycle, problem.sensor_rate_Hz,
+               problem.wind_xy_mps, problem.accel_max_mps2)
+        if key in self._solvers:
+            return self._solvers[key]
+        n = problem.pieces.n
+        v, clipped = ca.MX.sym("v", n), ca.MX.sym("s", n)
+        par = {f: ca.MX.sym(f, n) for f in FIELDS}
+        limit = ca.MX.sym("limit")
+        state = self._state(problem, v, par)
+        seg = self.model.segment_energy(state, par["length_m"], problem.duty_cycle)
+        # Transcription of the no-recovery clip: max(0, F) is not differentiable and IPOPT
+        # oscillates across its kink on descents; the epigraph s >= F, s >= 0 is exact at the
+        # optimum (minimising pushes s down to max(0, F)). With regen r:
+        # max(0, F) - r max(0, -F) = r F + (1 - r) max(0, F).
+        force = self.model.traction_force_N(state)
+        regen = self.model._regen_fraction()
+        traversal = par["length_m"] * (regen * force + (1 - regen) * clipped)
+        energy = ca.sum1(seg.ancillary_J + traversal)
+        time = ca.sum1(seg.mission_time_s)
+        length = par["length_m"]
+        dv2 = v[1:] ** 2 - v[:-1] ** 2
+        accel = 2 * problem.accel_max_mps2 * length[:-1]
+        g = [dv2 - accel, -dv2 - accel, force - clipped]
+        if problem.objective == "energy":
+            f, g = energy, [*g, time - limit]
+        else:
+            f, g = time, [*g, energy - limit]
+        nlp = {"x": ca.vertcat(v, clipped), "p": ca.vertcat(*[par[k] for k in FIELDS], limit), "f": f,
+               "g": ca.vertcat(*g)}
+        opts = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
+                **{f"ipopt.{k}": val for k, val in self.options.items()}}
+        solver = ca.nlpsol(f"speed_{n}_{problem.objective}", "ipopt", nlp, opts)
+        self._solvers[key] = solver
+        return solver
+
+    def _state(self, problem: SpeedProblem, speed, par) -> MotionState:
+        """Motion state of the pieces (numpy or MX ``speed`` and ``par``)."""
+        return MotionState(speed_mps=speed, cos_t=par["cos_t"], sin_t=par["sin_t"],
+                           dir_x=par["dir_x"], dir_y=par["dir_y"],
+                           wind_x_mps=problem.wind_xy_mps[0], wind_y_mps=problem.wind_xy_mps[1],
+                           crr=par["crr"], sensor_rate_Hz=problem.sensor_rate_Hz,
+                           surface_code=par["surface_code"])
+
+    def solve(self, problem: SpeedProblem, model_world=None, warm_start=None) -> SpeedProfile:
+        """Optimise the speeds; re-evaluate the result exactly with ``path_energy``.
+
+        Parameters
+        ----------
+        problem : the statement
+        model_world : World for the exact re-evaluation (None: figures from the NLP)
+        warm_start : initial speeds (N,); default the previous solution of this N
+
+        Raises
+        ------
+        PlanningError
+            If IPOPT does not converge (e.g. an energy budget below what the path needs).
+        """
+        import time as _time
+
+        pc = problem.pieces
+        solver = self._solver(problem)
+        no_limit = 1e30
+        limit = (problem.time_limit_s if problem.objective == "energy"
+                 else problem.energy_budget_J)
+        p = np.concatenate([getattr(pc, f) for f in FIELDS]
+                           + [[no_limit if limit is None else limit]])
+        x0 = warm_start if warm_start is not None else self._last.get(pc.n)
+        if x0 is None:
+            x0 = np.full(pc.n, 0.5 * (problem.v_min_mps + problem.v_max_mps))
+        x0 = np.clip(x0, problem.v_min_mps, problem.v_max_mps)
+        force0 = self.model.traction_force_N(self._state(problem, x0, vars(pc)))
+        n = pc.n
+        lbx = np.r_[np.full(n, problem.v_min_mps), np.zeros(n)]
+        ubx = np.r_[np.full(n, problem.v_max_mps), np.full(n, np.inf)]
+        t0 = _time.perf_counter()
+        r = solver(x0=np.r_[x0, np.maximum(force0, 0.0)], p=p, lbx=lbx, ubx=ubx, ubg=0.0)
+        seconds = _time.perf_counter() - t0
+        stats = solver.stats()
+        if not stats["success"]:
+            raise PlanningError(f"speed optimisation did not converge: {stats['return_status']}")
+        speed = np.asarray(r["x"]).ravel()[:n]
+        self._last[pc.n] = speed
+        e = self.model.segment_energy(self._state(problem, speed, vars(pc)), pc.length_m,
+                                      problem.duty_cycle)
+        pieces_J = float(np.sum(e.ancillary_J + e.traversal_J))
+        energy, duration = pieces_J, float(np.sum(e.mission_time_s))
+        if model_world is not None:
+            exact = path_energy(self.model, model_world, pc.xy_m, speed, problem.duty_cycle,
+                                problem.sensor_rate_Hz)
+            energy, duration = exact.total_J, exact.duration_s
+        return SpeedProfile(pc.xy_m, speed, energy, duration, int(stats["iter_count"]), seconds,
+                            pieces_J)
+
+
+def speed_problem(ctx, pieces: PathPieces, objective: str = "energy",
+                  time_limit_s: float | None = None,
+                  energy_budget_J: float | None = None) -> SpeedProblem:
+    """The speed problem of a scenario's robot on ``pieces`` (limits from the scenario)."""
+    r = ctx.scenario.robot
+    accel = getattr(r, "accel_max_mps2", None) or 0.5
+    if time_limit_s is None and objective == "energy":
+        time_limit_s = ctx.scenario.mission.time_limit_s
+    return SpeedProblem(pieces, r.v_min_mps, r.v_max_mps, accel, ctx.duty_cycle,
+                        ctx.sensor_rate_Hz, tuple(ctx.world.wind_xy_mps), objective,
+                        time_limit_s, energy_budget_J)

@@ -1,0 +1,78 @@
+"""Small worlds for the planning tests: a rectangle with boxes, an optional surface and a hill.
+
+``write_world(tmp_path, ...)`` writes the map, an ESRI ASCII DEM (if a hill or ramp is asked
+for) and a scenario TOML, and returns the scenario path.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+
+DEM_CELL_M = 2.0
+
+
+def box(x0, y0, x1, y1):
+    return [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]
+
+
+def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surfaces=(),
+                hill=None, ramp=0.0, home=(2.0, 2.0), rated_energy_Wh=1.0,
+                reserve=None, turn=0.0, drag=0.05, name="world") -> Path:
+    """Write map + DEM + scenario; ``hill`` = (cx, cy, height_m, sigma_m), ``ramp`` = dz/dx."""
+    features = [
+        {"type": "Feature", "properties": {"kind": "boundary"},
+         "geometry": {"type": "Polygon", "coordinates": box(0, 0, width_m, height_m)}},
+        {"type": "Feature", "properties": {"kind": "home"},
+         "geometry": {"type": "Point", "coordinates": list(home)}},
+    ]
+    for i, (x0, y0, x1, y1, crr) in enumerate(surfaces):
+        features.append({"type": "Feature",
+                         "properties": {"kind": "surface", "name": f"s{i}", "crr": crr},
+                         "geometry": {"type": "Polygon", "coordinates": box(x0, y0, x1, y1)}})
+    for x0, y0, x1, y1 in obstacles:
+        features.append({"type": "Feature", "properties": {"kind": "obstacle"},
+                         "geometry": {"type": "Polygon", "coordinates": box(x0, y0, x1, y1)}})
+    top = {}
+    if hill is not None or ramp:
+        top["elevation"] = f"{name}_dem.asc"
+        write_dem(folder / top["elevation"], width_m, height_m, hill, ramp)
+    (folder / f"{name}.geojson").write_text(
+        json.dumps({"type": "FeatureCollection", **top, "features": features}), encoding="utf-8")
+    scenario = {
+        "name": name,
+        "map": f"{name}.geojson",
+        "robot": {"kind": "ground", "mass_kg": 20.0, "crr": 0.03, "drag_coeff_kg_per_m": drag,
+                  "v_min_mps": 0.2, "v_max_mps": 1.5, "accel_max_mps2": 0.5,
+                  "turn_coeff_W_s_per_rad": turn},
+        "losses": {"battery": 0.05, "motor": 0.2, "mechanical": 0.1, "ancillary": 0.1},
+        "battery": {"rated_energy_Wh": rated_energy_Wh},
+        "ancillary": {"s0_W": 2.0, "s1_W_per_Hz": 0.0, "sensor_rate_Hz": 0.0,
+                      "compute_W": 2.0, "comm_W": 1.0},
+        "mission": {"duty_cycle": 0.9, "sensor_radius_m": 1.0,
+                    "reserve": reserve or {"fraction": 0.1}},
+        "environment": {"wind_speed_mps": 0.0, "wind_from_deg": 0.0},
+    }
+    path = folder / f"{name}.toml"
+    path.write_text(tomli_w.dumps(scenario), encoding="utf-8")
+    return path
+
+
+def write_dem(path: Path, width_m, height_m, hill, ramp) -> None:
+    """ESRI ASCII grid covering the rectangle with a margin cell (centres every DEM_CELL_M)."""
+    c = DEM_CELL_M
+    xs = np.arange(-c, width_m + 2 * c, c)
+    ys = np.arange(-c, height_m + 2 * c, c)
+    gx, gy = np.meshgrid(xs, ys)
+    z = ramp * gx
+    if hill is not None:
+        cx, cy, h, s = hill
+        z = z + h * np.exp(-((gx - cx) ** 2 + (gy - cy) ** 2) / (2 * s * s))
+    rows = z[::-1]  # file rows run north to south
+    head = (f"ncols {len(xs)}\nnrows {len(ys)}\nxllcenter {xs[0]}\nyllcenter {ys[0]}\n"
+            f"cellsize {c}\n")
+    body = "\n".join(" ".join(f"{v:.6f}" for v in r) for r in rows)
+    path.write_text(head + body + "\n", encoding="utf-8")

@@ -1,0 +1,86 @@
+"""planning.speed: the CasADi speed optimiser against hand-computed optima."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from planning_worlds import write_world
+
+from orange_plan.context import load_context
+from orange_plan.errors import InputError
+from orange_plan.physics.state import MotionState
+from orange_plan.planning.speed import SpeedSolver, cut_path, speed_problem
+
+pytestmark = pytest.mark.timeout(60)
+STRAIGHT = np.array([[2.0, 15.0], [38.0, 15.0]])
+
+
+@pytest.fixture(scope="module")
+def ctx(tmp_path_factory):
+    # Heavy drag: the energy-optimal cruise speed lies inside [v_min, v_max].
+    return load_context(write_world(tmp_path_factory.mktemp("speed"), drag=2.0,
+                                    hill=(20.0, 25.0, 3.0, 6.0)))
+
+
+def v_star(ctx) -> float:
+    """argmin_v P_anc/(v D) + (crr m g + c v^2)/Omega  ->  v^3 = P_anc Omega / (2 c D)."""
+    sc = ctx.scenario
+    p_anc = (2.0 + 2.0 + 1.0) / (1 - sc.losses.ancillary)
+    return (p_anc * sc.omega / (2 * sc.robot.drag_coeff_kg_per_m * sc.mission.duty_cycle)) ** (1 / 3)
+
+
+def test_flat_optimum_is_the_closed_form_speed(tmp_path):
+    ctx = load_context(write_world(tmp_path, drag=2.0))
+    pieces = cut_path(ctx.world, STRAIGHT, 20)
+    prof = SpeedSolver(ctx.model).solve(speed_problem(ctx, pieces), ctx.world)
+    assert 0.2 < v_star(ctx) < 1.5
+    assert np.allclose(prof.speed_mps, v_star(ctx), rtol=1e-4)
+
+
+def test_mx_objective_equals_numpy_model(ctx):
+    pieces = cut_path(ctx.world, [[2, 5], [20, 28], [38, 5]], 30)
+    prof = SpeedSolver(ctx.model).solve(speed_problem(ctx, pieces))
+    assert prof.energy_J == prof.pieces_energy_J
+    state = MotionState(speed_mps=prof.speed_mps, cos_t=pieces.cos_t, sin_t=pieces.sin_t,
+                        dir_x=pieces.dir_x, dir_y=pieces.dir_y, crr=pieces.crr)
+    e = ctx.model.segment_energy(state, pieces.length_m, ctx.duty_cycle)
+    assert prof.energy_J == pytest.approx(float(np.sum(e.ancillary_J + e.traversal_J)), rel=1e-9)
+
+
+def test_time_limit_binds_and_accel_limit_holds(ctx):
+    pieces = cut_path(ctx.world, [[2, 5], [20, 28], [38, 5]], 60)
+    solver = SpeedSolver(ctx.model)
+    free = solver.solve(speed_problem(ctx, pieces), ctx.world)
+    limited = solver.solve(speed_problem(ctx, pieces, time_limit_s=0.8 * free.duration_s),
+                           ctx.world)
+    assert limited.duration_s == pytest.approx(0.8 * free.duration_s, rel=1e-3)
+    assert limited.energy_J > free.energy_J
+    v2 = limited.speed_mps ** 2
+    assert np.all(np.abs(np.diff(v2)) <= 2 * 0.5 * pieces.length_m[:-1] + 1e-6)
+
+
+def test_min_time_within_energy_budget(ctx):
+    pieces = cut_path(ctx.world, STRAIGHT, 20)
+    solver = SpeedSolver(ctx.model)
+    best = solver.solve(speed_problem(ctx, pieces), ctx.world)
+    fast = solver.solve(speed_problem(ctx, pieces, objective="time",
+                                      energy_budget_J=1.05 * best.pieces_energy_J), ctx.world)
+    assert fast.duration_s < best.duration_s
+    assert fast.pieces_energy_J <= 1.05 * best.pieces_energy_J * (1 + 1e-6)
+    assert fast.energy_J == pytest.approx(fast.pieces_energy_J, rel=0.01)  # finer sub-steps
+
+
+def test_cut_path_keeps_corners_and_count(ctx):
+    pieces = cut_path(ctx.world, [[2, 5], [20, 28], [38, 5]], 25)
+    assert pieces.n == 25 and len(pieces.xy_m) == 26
+    assert any(np.allclose(p, [20, 28]) for p in pieces.xy_m)
+
+
+def test_bad_input(ctx):
+    pieces = cut_path(ctx.world, STRAIGHT, 10)
+    with pytest.raises(InputError, match="shorter than the path takes at v_max"):
+        speed_problem(ctx, pieces, time_limit_s=1.0)
+    with pytest.raises(InputError, match="objective"):
+        speed_problem(ctx, pieces, objective="fun")
+    with pytest.raises(InputError, match="fewer than"):
+        cut_path(ctx.world, [[2, 5], [20, 28], [38, 5]], 1)
