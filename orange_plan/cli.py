@@ -102,7 +102,9 @@ def _register_commands() -> None:
         importlib.import_module(f"orange_plan.commands.{name}")
 
 
-COMMAND_MODULES = ["range_", "convert", "predict"]
+COMMAND_MODULES = [
+    "range_", "reach", "simulate", "convert", "predict", "calibrate", "bench", "bench_identify",
+]
 """One module per command in orange_plan/commands/, registered in this order."""
 
 

@@ -1,0 +1,120 @@
+"""``orange-plan bench calibration|online``: reproduce the issue #4 measurements.
+
+The subcommands sit on the ``bench`` group of ``commands/bench.py`` (registered from here,
+so that file needs no edit).
+"""
+
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from orange_plan.cli import JsonOpt, err, handles_errors, out, print_json
+from orange_plan.commands.bench import bench_app
+
+REPO = Path(__file__).resolve().parents[2]
+DataOpt = Annotated[Path, typer.Option("--data", help="Folder with borealtc/ and tum_bmw_i3/.")]
+ScenariosOpt = Annotated[Path, typer.Option("--scenarios", help="Folder of scenario TOML files.")]
+SeedsOpt = Annotated[int, typer.Option("--seeds", help="Simulated runs per scenario.")]
+PngOpt = Annotated[Path | None, typer.Option(
+    "--png", help="Figure of the range estimates over the first run of each scenario.")]
+OnlyOpt = Annotated[str | None, typer.Option(
+    "--only", help="Comma-separated subset (datasets or scenario names).")]
+
+
+@contextmanager
+def _progress(total: int, label: str, quiet: bool):
+    """A rich progress bar on stderr, only on a terminal and never with --json."""
+    if quiet or not sys.stderr.isatty():
+        yield None
+        return
+    from rich.progress import Progress
+
+    with Progress(console=err, transient=True) as bar:
+        task = bar.add_task(label, total=total)
+        yield lambda: bar.advance(task)
+
+
+def _split(text):
+    return None if text is None else [t.strip() for t in text.split(",") if t.strip()]
+
+
+@bench_app.command("calibration")
+@handles_errors
+def calibration_cmd(data: DataOpt = REPO.parent / "shared" / "data",
+                    scenarios: ScenariosOpt = REPO / "scenarios", only: OnlyOpt = None,
+                    as_json: JsonOpt = False) -> None:
+    """Fit on every other real run, predict the others' whole-run energy (two folds)."""
+    from orange_plan.errors import InputError
+    from orange_plan.identify.bench import (
+        CALIBRATION_CASES,
+        calibration_benchmark,
+        summarise_calibration,
+    )
+
+    if not data.is_dir():
+        raise InputError(f"{data}: data folder not found (give --data)")
+    names = _split(only) or list(CALIBRATION_CASES)
+    unknown = [n for n in names if n not in CALIBRATION_CASES]
+    if unknown:
+        raise InputError(f"unknown dataset '{unknown[0]}'; known: {', '.join(CALIBRATION_CASES)}")
+    with _progress(2 * len(names), "calibrating", as_json) as tick:
+        rows = calibration_benchmark(data, scenarios, names, progress=tick)
+    summary = summarise_calibration(rows)
+    if as_json:
+        print_json({"summary": summary, "runs": [r.to_dict() for r in rows]})
+        return
+    table = Table(title="Whole-run energy error on held-out runs (2-fold)", header_style="bold")
+    for col in ("dataset", "runs", "mean |err| %", "median |err| %", "max |err| %",
+                "pooled err %", "a priori mean |err| %"):
+        table.add_column(col, justify="left" if col == "dataset" else "right")
+    for s in summary:
+        table.add_row(s["dataset"], str(s["held_out_runs"]), f"{s['mean_abs_error_pct']:.1f}",
+                      f"{s['median_abs_error_pct']:.1f}", f"{s['max_abs_error_pct']:.1f}",
+                      f"{s['pooled_error_pct']:+.1f}", f"{s['mean_abs_error_prior_pct']:.1f}")
+    out.print(table)
+
+
+@bench_app.command("online")
+@handles_errors
+def online_cmd(scenarios: ScenariosOpt = REPO / "scenarios", seeds: SeedsOpt = 3,
+               only: OnlyOpt = None, png: PngOpt = None, as_json: JsonOpt = False) -> None:
+    """Offline vs online range accuracy on simulated runs to depletion."""
+    from orange_plan.errors import InputError
+    from orange_plan.identify.bench import BENCH_TRUTHS, online_benchmark, summarise
+
+    names = _split(only) or list(BENCH_TRUTHS)
+    if seeds < 1:
+        raise InputError(f"--seeds = {seeds} must be >= 1")
+    with _progress(len(names) * seeds, "simulating", as_json) as tick:
+        rows = online_benchmark(scenarios, names, tuple(range(seeds)), progress=tick)
+    summary = summarise(rows)
+    report = {"summary": summary, "runs": [r.to_dict() for r in rows]}
+    if png is not None:
+        from orange_plan.context import load_context
+        from orange_plan.identify.bench import online_trace
+        from orange_plan.viz.online_plot import plot_online_traces
+
+        traces = [online_trace(load_context(scenarios / f"{n}.toml"), BENCH_TRUTHS.get(n, {}),
+                               0)[0] for n in names]
+        plot_online_traces(traces, png)
+        report["png"] = str(png)
+    if as_json:
+        print_json(report)
+        return
+    table = Table(title="Range accuracy, simulated runs to depletion", header_style="bold")
+    for col in ("scenario", "runs", "d_true m", "offline %", "online @20 % %",
+                "online mean 20-80 % %"):
+        table.add_column(col, justify="left" if col == "scenario" else "right")
+    for s in summary:
+        table.add_row(s["scenario"], str(s["runs"]), f"{s['d_true_m']:,.0f}",
+                      f"{s['accuracy_offline_pct']:.1f}", f"{s['accuracy_online_pct']:.1f}",
+                      f"{s['accuracy_online_mean_pct']:.1f}")
+    out.print(table)
+    if png is not None:
+        out.print(f"figure: {png}")

@@ -1,0 +1,1 @@
+"""System identification: calibration (offline) and the online ORangE estimator."""

@@ -1,0 +1,475 @@
+"""Calibration: fit the model's lumped coefficients theta (with covariance) to recordings.
+
+Battery power is linear in theta apart from the no-recovery clip ``max(0, F)`` and the
+regen product (DESIGN.md). The fit is a Gauss-Newton / maximum-a-posteriori least squares:
+
+    minimise  sum_i (P_i - P(state_i; theta))^2 / s2  +  sum_k ((theta_k - theta0_k) / sd0_k)^2
+
+with the Jacobian from ``EnergyModel.power_jacobian`` (the clip acts as a mask, recomputed at
+each iterate until it stops changing). ``theta0, sd0`` are the scenario's values and their
+a priori standard errors (``[model] stderr`` or ``prior_relative_stderr``): they only matter
+for directions the data cannot see (a hover power next to an ancillary power; a coefficient
+whose feature is zero in the recording). A zero prior standard error means "no prior".
+
+Honest uncertainties: power residuals are autocorrelated (a controller, a gust, a slope
+lasts seconds). The noise variance ``s2`` is the residual variance times an inflation
+factor ``tau = B var(block means) / var(residuals)`` (batch means over blocks of
+``block_s``), i.e. the integrated autocorrelation time in samples; ``cov_ = (J' J / s2 +
+P0^-1)^-1``.
+
+Calibration experiments (the paper's):
+* wheels-up test: rows with a truthy ``wheels_up`` column have no traction: their speed,
+  grade, acceleration and yaw rate are zeroed before the features are computed, so they
+  inform only the ``power`` terms (ancillary, sensor rate, hover). The wheels spin (motor
+  no-load losses show up as power above the ancillary draw: ``fit_report_.wheels_up_W``).
+* sensor-rate sweep: a ``sensor_rate_Hz`` column that varies separates ``ancillary_W``
+  (s0 + compute + comm) from ``sensor_W_per_Hz`` (s1); ask for ``terms`` with ``sensor_rate``.
+* drive tests per surface: a ``surface`` column (or positions on a map with surfaces) with
+  the ``surface_rolling`` term gives one ``rolling_kg_<surface>``; ``surface_crr_`` reports
+  the implied rolling coefficient per surface.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from orange_plan.errors import InputError
+from orange_plan.physics.builder import reference_coefficients
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.state import MotionState
+from orange_plan.physics.terms import TERMS, surface_rolling_term
+
+WHEELS_UP_COLUMN = "wheels_up"
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """Fit quality.
+
+    Attributes
+    ----------
+    rmse_W : RMS power residual of the final fit on all samples [W]
+    holdout_rmse_W : RMS residual on held-out time blocks, fitted without them [W]
+    energy_error_pct : |predicted - recorded| energy on the held-out blocks, % of recorded
+    energy_bias_pct : the same, signed (positive: the model predicts more) [%]
+    n_samples, n_holdout : samples used in the final fit / held out for the test
+    inflation : residual autocorrelation factor tau applied to the noise variance [-]
+    residual_sd_W : sqrt of the residual variance (before inflation) [W]
+    iterations : Gauss-Newton iterations of the final fit
+    wheels_up_W : mean recorded power over wheels-up rows, NaN without any [W]
+    unphysical : coefficients fitted outside their physical range (negative, or a regen
+        efficiency above 1): the model lacks something the data hold, or the data cannot
+        separate the terms; the values are reported as fitted, not clipped
+    """
+
+    rmse_W: float
+    holdout_rmse_W: float
+    energy_error_pct: float
+    energy_bias_pct: float
+    n_samples: int
+    n_holdout: int
+    inflation: float
+    residual_sd_W: float
+    iterations: int
+    wheels_up_W: float = float("nan")
+    unphysical: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Stacked samples of one or more recordings, ready for the fit.
+
+    Attributes
+    ----------
+    state : per-sample MotionState (wheels-up rows already without traction)
+    power_W : recorded power [W]
+    dt_s : time weight of each sample for energies (forward interval, 0 across gaps) [s]
+    block : (recording index, time block index) label of each sample, for hold-out / batches
+    wheels_up : True on wheels-up rows
+    """
+
+    state: MotionState
+    power_W: np.ndarray
+    dt_s: np.ndarray
+    block: np.ndarray
+    wheels_up: np.ndarray
+
+    def subset(self, mask: np.ndarray) -> Samples:
+        return Samples(_take(self.state, mask), self.power_W[mask], self.dt_s[mask],
+                       self.block[mask], self.wheels_up[mask])
+
+
+def _take(state: MotionState, mask) -> MotionState:
+    n = mask.size
+    return MotionState(**{f.name: np.broadcast_to(np.asarray(getattr(state, f.name)), (n,))[mask]
+                          for f in fields(MotionState)})
+
+
+def _concat(states: Sequence[MotionState], sizes: Sequence[int]) -> MotionState:
+    return MotionState(**{
+        f.name: np.concatenate([np.broadcast_to(np.asarray(getattr(s, f.name)), (n,))
+                                for s, n in zip(states, sizes)])
+        for f in fields(MotionState)})
+
+
+def recording_state(rec, ctx, grade_window_m: float | None = None,
+                    yaw_rate_column: str | None = None) -> MotionState:
+    """MotionState of a recording for fitting and replay (``telemetry.motion_state``), with
+    wheels-up rows stripped of traction and, optionally, the yaw rate from another column
+    (e.g. BorealTC's ``wheel_yaw_rate_radps``: skid-steer scrub follows the wheels).
+
+    Raises
+    ------
+    InputError
+        ``yaw_rate_column`` is not in the recording.
+    """
+    from orange_plan.telemetry.recording import motion_state
+
+    extra = {} if grade_window_m is None else {"grade_window_m": grade_window_m}
+    state = motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz, **extra)
+    n = len(rec.frame)
+    if yaw_rate_column is not None:
+        if yaw_rate_column not in rec.frame.columns:
+            raise InputError(f"{rec.source}: no column '{yaw_rate_column}' for the yaw rate")
+        state = state.with_(yaw_rate_radps=rec.frame[yaw_rate_column].to_numpy(float))
+    wheels = _wheels_up(rec)
+    if wheels.any():
+        state = _no_traction(state, wheels, n)
+    return state
+
+
+def recording_samples(recordings, ctx, n_blocks: int = 10,
+                      grade_window_m: float | None = None,
+                      yaw_rate_column: str | None = None) -> Samples:
+    """Motion states, power and time weights of recordings (telemetry.motion_state).
+
+    Parameters
+    ----------
+    recordings : telemetry Recording objects
+    ctx : Context (world for crr, surfaces and wind; the scenario's sensor rate)
+    n_blocks : equal-time blocks per recording (labels for hold-out)
+    grade_window_m : smoothing window of elevation before the grade [m]; None: the
+        telemetry default (suits GPS/DEM elevation outdoors; use ~1 m on a lab ramp)
+    yaw_rate_column : take the yaw rate from this column instead of ``yaw_rate_radps``
+    """
+    if not recordings:
+        raise InputError("calibrate needs at least one recording")
+    states, sizes, power, dt, block, up = [], [], [], [], [], []
+    for i, rec in enumerate(recordings):
+        state = recording_state(rec, ctx, grade_window_m, yaw_rate_column)
+        n = len(rec.frame)
+        wheels = _wheels_up(rec)
+        t = rec.t_s
+        step = np.r_[np.diff(t) * rec.interval_ok, 0.0]
+        edges = np.linspace(t[0], t[-1], n_blocks + 1)
+        states.append(state)
+        sizes.append(n)
+        power.append(rec.frame["power_W"].to_numpy(float))
+        dt.append(step)
+        block.append(np.stack([np.full(n, i), np.clip(np.searchsorted(edges, t, "right") - 1,
+                                                       0, n_blocks - 1)], axis=1))
+        up.append(wheels)
+    return Samples(_concat(states, sizes), np.concatenate(power), np.concatenate(dt),
+                   np.concatenate(block), np.concatenate(up))
+
+
+def _wheels_up(rec) -> np.ndarray:
+    if WHEELS_UP_COLUMN not in rec.frame.columns:
+        return np.zeros(len(rec.frame), bool)
+    col = rec.frame[WHEELS_UP_COLUMN]
+    if col.dtype == object:
+        return col.astype(str).str.strip().str.lower().isin(["1", "true", "yes"]).to_numpy()
+    return col.fillna(0).to_numpy(float) != 0
+
+
+def _no_traction(state: MotionState, mask: np.ndarray, n: int) -> MotionState:
+    """Wheels in the air: no speed over ground, grade, acceleration or turning."""
+    zero = {"speed_mps": 0.0, "sin_t": 0.0, "cos_t": 1.0, "accel_mps2": 0.0,
+            "yaw_rate_radps": 0.0}
+    changes = {}
+    for name, value in zero.items():
+        arr = np.array(np.broadcast_to(np.asarray(getattr(state, name), float), (n,)))
+        arr[mask] = value
+        changes[name] = arr
+    return state.with_(**changes)
+
+
+def model_with_terms(ctx, terms: Sequence[str] | None, surface_names=None) -> EnergyModel:
+    """The context's model, or one with exactly ``terms`` (vocabulary ids, SPEC §6).
+
+    Coefficients keep the context model's values and variances; new ones start at the
+    scenario's reference values with ``prior_relative_stderr`` (zero value: no prior).
+    """
+    if terms is None:
+        return ctx.model
+    names = tuple(surface_names or ctx.world.map.surface_names)
+    built = []
+    for t in terms:
+        if t == "surface_rolling":
+            if not names:
+                raise InputError("term 'surface_rolling' needs surfaces (map or surface column)")
+            built.append(surface_rolling_term(names))
+        elif t in TERMS:
+            built.append(TERMS[t])
+        else:
+            raise InputError(f"unknown term '{t}'; known: {', '.join([*TERMS, 'surface_rolling'])}")
+    defaults = reference_coefficients(ctx.scenario)
+    have = ctx.model.as_dict()
+    theta = {}
+    for term in built:
+        for name in term.coefficients:
+            if name in have:
+                theta[name] = have[name]
+            else:
+                theta[name] = defaults["rolling_kg"] if name.startswith("rolling_kg_") else defaults[name]
+    model = ctx.model.with_terms(built, theta)
+    rel = ctx.scenario.model.prior_relative_stderr
+    cov = model.cov.copy()
+    for i, name in enumerate(model.names):
+        if name not in have:
+            cov[i, i] = (rel * theta[name]) ** 2
+    return EnergyModel(model.terms, model.as_dict(), cov, model.omega)
+
+
+class Calibrator:
+    """Fit a model's coefficients to recordings (scikit-learn style).
+
+    Parameters
+    ----------
+    terms : vocabulary ids of the model to fit; None: the scenario's model as it is
+    fixed : coefficient names held at their scenario values
+    holdout_blocks : equal-time blocks per recording; every ``holdout_every``-th (offset
+        half way) is held out for ``holdout_rmse_W`` and ``energy_error_pct``
+    holdout_every : one block in this many is held out (0: no hold-out) [-]
+    block_s : batch length for the autocorrelation inflation [s]
+    use_prior : include the scenario's a priori values (MAP); False: plain least squares
+        (directions the data cannot see then keep their scenario values)
+    prior_scale : the a priori standard errors are widened by this factor [-]. Scenario
+        values marked "plausible" are rarely within 10 % of a real robot's lumped
+        coefficients; widened, they only steer what the data cannot determine
+    max_iter : Gauss-Newton iterations
+    grade_window_m : elevation smoothing window for the grade [m] (None: telemetry default)
+    yaw_rate_column : recording column for the turning feature (None: ``yaw_rate_radps``)
+
+    Attributes (after ``fit``)
+    --------------------------
+    model_ : the fitted EnergyModel (theta_ and cov_ inside)
+    prior_ : the starting (scenario) coefficients
+    theta_ : dict of fitted coefficients
+    cov_ : covariance in ``model_.names`` order
+    stderr_ : dict of standard errors
+    fit_report_ : FitReport
+    surface_crr_ : implied rolling coefficient per surface seen in the data (and "default")
+    """
+
+    def __init__(self, terms: Sequence[str] | None = None, fixed: Sequence[str] = (),
+                 holdout_blocks: int = 10, holdout_every: int = 5, block_s: float = 30.0,
+                 use_prior: bool = True, prior_scale: float = 10.0, max_iter: int = 30,
+                 grade_window_m: float | None = None, yaw_rate_column: str | None = None):
+        self.terms = terms
+        self.fixed = tuple(fixed)
+        self.holdout_blocks = holdout_blocks
+        self.holdout_every = holdout_every
+        self.block_s = block_s
+        self.use_prior = use_prior
+        self.prior_scale = prior_scale
+        self.max_iter = max_iter
+        self.grade_window_m = grade_window_m
+        self.yaw_rate_column = yaw_rate_column
+
+    # --- public ------------------------------------------------------------------------
+    def fit(self, recordings, ctx) -> Calibrator:
+        """Fit to telemetry Recordings in the scenario's world; returns self."""
+        self._validate()
+        samples = recording_samples(list(recordings), ctx, self.holdout_blocks,
+                                    self.grade_window_m, self.yaw_rate_column)
+        return self.fit_samples(samples, model_with_terms(ctx, self.terms), ctx.scenario,
+                                ctx.world.map.surface_names)
+
+    def fit_samples(self, samples: Samples, model: EnergyModel, scenario=None,
+                    surface_names: Sequence[str] = ()) -> Calibrator:
+        """Fit to prepared Samples starting from ``model`` (its theta and cov are the prior)."""
+        self._validate()
+        unknown = [n for n in self.fixed if n not in model.names]
+        if unknown:
+            raise InputError(f"fixed names unknown coefficient '{unknown[0]}' (have {list(model.names)})")
+        if samples.power_W.size < len(model.names) + 2:
+            raise InputError(f"{samples.power_W.size} samples are too few to fit "
+                             f"{len(model.names)} coefficients")
+        held = self._held_out(samples)
+        ho_rmse, ho_err, ho_bias = float("nan"), float("nan"), float("nan")
+        if held.any() and (~held).any():
+            train, _, _ = self._solve(samples.subset(~held), model)
+            test = samples.subset(held)
+            resid = test.power_W - np.asarray(train.power_W(test.state), float)
+            ho_rmse = float(np.sqrt(np.mean(resid**2)))
+            e_rec = float(np.sum(test.power_W * test.dt_s))
+            e_pred = e_rec - float(np.sum(resid * test.dt_s))
+            ho_bias = 100.0 * (e_pred - e_rec) / e_rec if e_rec else float("nan")
+            ho_err = abs(ho_bias)
+        fitted, iters, noise = self._solve(samples, model)
+        resid = samples.power_W - np.asarray(fitted.power_W(samples.state), float)
+        up = samples.wheels_up
+        self.prior_ = model.as_dict()
+        self.model_ = fitted
+        self.theta_ = fitted.as_dict()
+        self.cov_ = fitted.cov
+        self.stderr_ = fitted.stderr()
+        self.fit_report_ = FitReport(
+            rmse_W=float(np.sqrt(np.mean(resid**2))), holdout_rmse_W=ho_rmse,
+            energy_error_pct=ho_err, energy_bias_pct=ho_bias, n_samples=int(resid.size),
+            n_holdout=int(held.sum()), inflation=noise[1], residual_sd_W=float(np.sqrt(noise[0])),
+            iterations=iters,
+            wheels_up_W=float(np.mean(samples.power_W[up])) if up.any() else float("nan"),
+            unphysical=unphysical(self.theta_))
+        self.surface_crr_ = (surface_crr(fitted, samples.state, scenario, surface_names)
+                             if scenario else {})
+        return self
+
+    # --- internals -----------------------------------------------------------------------
+    def _validate(self) -> None:
+        if int(self.holdout_blocks) != self.holdout_blocks or self.holdout_blocks < 1:
+            raise InputError(f"holdout_blocks = {self.holdout_blocks!r} must be a positive integer")
+        if self.holdout_every < 0 or int(self.holdout_every) != self.holdout_every:
+            raise InputError(f"holdout_every = {self.holdout_every!r} must be an integer >= 0")
+        if not (self.prior_scale > 0 and np.isfinite(self.prior_scale)):
+            raise InputError(f"prior_scale = {self.prior_scale!r} must be a positive number")
+        if not self.block_s > 0:
+            raise InputError(f"block_s = {self.block_s!r} must be > 0")
+
+    def _held_out(self, samples: Samples) -> np.ndarray:
+        k = int(self.holdout_every)
+        if k <= 1:
+            return np.zeros(samples.power_W.size, bool)
+        return samples.block[:, 1] % k == k // 2
+
+    def _prior(self, model: EnergyModel):
+        sd = np.sqrt(np.clip(np.diag(model.cov), 0.0, None)) * self.prior_scale
+        informative = (sd > 0) & self.use_prior
+        return model.theta.copy(), np.where(informative, sd, np.inf)
+
+    def _solve(self, samples: Samples, model: EnergyModel):
+        """Gauss-Newton MAP fit; returns (model with theta and cov, iterations, (s2, tau))."""
+        theta0, sd0 = self._prior(model)
+        free = np.array([n not in self.fixed for n in model.names])
+        y = samples.power_W
+        theta, s2, tau, iters = theta0.copy(), None, 1.0, 0
+        for _ in range(3):  # noise variance and inflation settle in two or three passes
+            theta, iters = self._gauss_newton(model, samples.state, y, theta, theta0, sd0, free,
+                                              s2 * tau if s2 else None)
+            resid = y - np.asarray(model.power_W(samples.state, theta), float)
+            dof = max(1, resid.size - int(free.sum()))
+            s2 = max(float(np.sum(resid**2)) / dof, 1e-12)
+            tau = inflation_factor(resid, samples, self.block_s)
+        fitted = model.with_theta(dict(zip(model.names, theta)))
+        jac = fitted.power_jacobian(samples.state)[:, free]
+        info = jac.T @ jac / (s2 * tau) + np.diag(1.0 / sd0[free] ** 2)
+        cov = np.zeros((theta.size, theta.size))
+        cov[np.ix_(free, free)] = np.linalg.pinv(info)
+        return EnergyModel(fitted.terms, fitted.as_dict(), cov, fitted.omega), iters, (s2, tau)
+
+    def _gauss_newton(self, model, state, y, theta, theta0, sd0, free, noise_var):
+        names = model.names
+        prior_rows = np.isfinite(sd0) & free
+        iters = 0
+        for iters in range(1, self.max_iter + 1):  # noqa: B007 - the count is reported
+            current = model.with_theta(dict(zip(names, theta)))
+            jac = current.power_jacobian(state)[:, free]
+            resid = y - np.asarray(current.power_W(state), float)
+            var = noise_var if noise_var else max(float(np.var(resid)), 1e-12)
+            a = [jac / np.sqrt(var)]
+            b = [resid / np.sqrt(var)]
+            if prior_rows.any():
+                rows = np.diag(1.0 / sd0[free])[prior_rows[free]]
+                a.append(rows)
+                b.append(((theta0 - theta) / sd0)[prior_rows])
+            A, B = np.vstack(a), np.concatenate(b)
+            scale = np.linalg.norm(A, axis=0)
+            scale[scale == 0] = 1.0
+            delta = np.linalg.lstsq(A / scale, B, rcond=None)[0] / scale
+            step = np.zeros_like(theta)
+            step[free] = delta
+            theta = self._damped(model, state, y, theta, step, theta0, sd0, var)
+            if np.all(np.abs(step) <= 1e-9 + 1e-7 * np.abs(theta)):
+                break
+        return theta, iters
+
+    @staticmethod
+    def _damped(model, state, y, theta, step, theta0, sd0, var):
+        def cost(th):
+            r = y - np.asarray(model.power_W(state, th), float)
+            prior = np.where(np.isfinite(sd0), (th - theta0) / np.where(np.isfinite(sd0), sd0, 1), 0)
+            return float(np.sum(r**2) / var + np.sum(prior**2))
+
+        base = cost(theta)
+        for frac in (1.0, 0.5, 0.25, 0.125, 0.0625):
+            trial = theta + frac * step
+            if cost(trial) <= base:
+                return trial
+        return theta
+
+
+def unphysical(theta: dict) -> tuple[str, ...]:
+    """Names of coefficients outside their physical range: every lumped coefficient is >= 0
+    (powers, masses, drag, turning losses) and a regen efficiency is at most 1."""
+    return tuple(n for n, v in theta.items()
+                 if v < 0 or (n == "regen_efficiency" and v > 1))
+
+
+def inflation_factor(resid: np.ndarray, samples: Samples, block_s: float) -> float:
+    """Integrated autocorrelation time of residuals in samples, by batch means (>= 1) [-].
+
+    ``tau = B var(mean of each batch of B samples) / var(residuals)``, batches of about
+    ``block_s`` seconds within each recording; 1 for white residuals.
+    """
+    var = float(np.var(resid))
+    dt = samples.dt_s[samples.dt_s > 0]
+    if var <= 0 or dt.size == 0:
+        return 1.0
+    b = int(max(1, min(round(block_s / float(np.median(dt))), resid.size // 20)))
+    if b <= 1:
+        return 1.0
+    means = []
+    for rec in np.unique(samples.block[:, 0]):
+        r = resid[samples.block[:, 0] == rec]
+        k = r.size // b
+        if k:
+            means.append(r[: k * b].reshape(k, b).mean(axis=1))
+    means = np.concatenate(means) if means else np.zeros(0)
+    if means.size < 5:
+        return 1.0
+    return max(1.0, b * float(np.var(means)) / var)
+
+
+def surface_crr(model: EnergyModel, state: MotionState, scenario,
+                surface_names: Sequence[str] = ()) -> dict[str, float]:
+    """Rolling coefficient implied by the fitted rolling coefficients, per surface seen [-].
+
+    ``crr_s = theta_s * Omega / m * mean(crr at those samples)``: theta is m/Omega times
+    the ratio of the true to the assumed crr. Key "default" for default ground.
+    """
+    factor = scenario.omega / scenario.robot.mass_kg
+    code = np.broadcast_to(np.asarray(state.surface_code), np.shape(state.speed_mps))
+    crr = np.broadcast_to(np.asarray(state.crr, float), code.shape)
+    out = {}
+    theta = model.as_dict()
+    surface_term = next((t for t in model.terms if t.id == "surface_rolling"), None)
+    if "rolling_kg" in theta and np.any(code < 0):
+        out["default"] = theta["rolling_kg"] * factor * float(np.mean(crr[code < 0]))
+    if surface_term is not None:
+        for c, name in enumerate(surface_term.coefficients):
+            hit = code == c
+            if hit.any():
+                out[name.removeprefix("rolling_kg_")] = theta[name] * factor * float(np.mean(crr[hit]))
+    elif "rolling_kg" in theta:
+        for c in np.unique(code[code >= 0]):
+            label = surface_names[c] if c < len(surface_names) else f"surface_{int(c)}"
+            out[label] = theta["rolling_kg"] * factor * float(np.mean(crr[code == c]))
+    return out
+

@@ -1,0 +1,124 @@
+"""Write a fitted model back into a scenario TOML (``calibrate -o``), and read it physically.
+
+Rule (documented in the README): the fitted lumped coefficients are written into the
+``[model]`` table (``name = value`` plus ``stderr = {name = value}``), which the scenario
+loader applies verbatim, so the written scenario rebuilds exactly the fitted coefficients and
+their standard errors (correlations are not stored). Where a lumped coefficient maps to one
+physical key, that key is updated too, so the file reads right and switches on terms that the
+reference model enables by their physical value:
+
+* ``ancillary_W``    -> ``[ancillary] s0_W, compute_W, comm_W`` scaled by one factor so that
+  ``(s0 + compute + comm) / (1 - eta_4)`` equals it (all into ``s0_W`` if they were all 0)
+* ``sensor_W_per_Hz`` -> ``s1_W_per_Hz = theta (1 - eta_4)``
+* ``hover_W``        -> ``[robot] hover_W``
+* ``drag_kg_per_m``  -> ``[robot] drag_coeff_kg_per_m = theta Omega``
+* ``turn_J_per_rad`` -> ``[robot] turn_coeff_W_s_per_rad``
+
+Mass and crr stay as they were: ``rolling_kg``, ``grade_kg``, ``inertia_kg`` and the
+per-surface ``rolling_kg_<s>`` live in ``[model]`` (``physical_values`` reports the implied
+crr factor and masses). Physical keys are clipped at 0 where a fit went negative.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from pathlib import Path
+
+import tomli_w
+
+from orange_plan.errors import InputError, OrangeError
+from orange_plan.physics.model import EnergyModel
+from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
+
+
+def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
+    """Physical quantities implied by lumped coefficients (dotted scenario keys or
+    descriptive names): see the module docstring."""
+    theta = model.as_dict()
+    omega, mass = scenario.omega, scenario.robot.mass_kg
+    keep = 1.0 - scenario.losses.ancillary
+    out: dict[str, float] = {}
+    if "ancillary_W" in theta:
+        out["ancillary_load_W"] = theta["ancillary_W"] * keep
+    if "sensor_W_per_Hz" in theta:
+        out["ancillary.s1_W_per_Hz"] = theta["sensor_W_per_Hz"] * keep
+    if "hover_W" in theta:
+        out["robot.hover_W"] = theta["hover_W"]
+    if "drag_kg_per_m" in theta:
+        out["robot.drag_coeff_kg_per_m"] = theta["drag_kg_per_m"] * omega
+    if "turn_J_per_rad" in theta:
+        out["robot.turn_coeff_W_s_per_rad"] = theta["turn_J_per_rad"]
+    if "rolling_kg" in theta:
+        out["crr_factor"] = theta["rolling_kg"] * omega / mass
+    if "grade_kg" in theta:
+        out["mass_from_grade_kg"] = theta["grade_kg"] * omega
+    if "inertia_kg" in theta:
+        out["mass_from_inertia_kg"] = theta["inertia_kg"] * omega
+    if "regen_efficiency" in theta:
+        out["regen_efficiency"] = theta["regen_efficiency"]
+    return out
+
+
+def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path) -> dict:
+    """The scenario's TOML mapping with the fitted values (module docstring rule)."""
+    data = tomllib.loads(Path(scenario.path).read_text(encoding="utf-8"))
+    data["map"] = Path(os.path.relpath(scenario.map_path, out_dir.resolve())).as_posix()
+    theta, sd = model.as_dict(), model.stderr()
+    keep = 1.0 - scenario.losses.ancillary
+    anc = data.setdefault("ancillary", {})
+    robot = data.setdefault("robot", {})
+    if "ancillary_W" in theta:
+        parts = ("s0_W", "compute_W", "comm_W")
+        total = sum(float(anc.get(k, 0.0)) for k in parts)
+        target = max(0.0, theta["ancillary_W"] * keep)
+        for k in parts:
+            anc[k] = float(anc.get(k, 0.0)) * target / total if total > 0 else 0.0
+        if total <= 0:
+            anc["s0_W"] = target
+    if "sensor_W_per_Hz" in theta:
+        anc["s1_W_per_Hz"] = max(0.0, theta["sensor_W_per_Hz"] * keep)
+    if "hover_W" in theta:
+        robot["hover_W"] = max(0.0, theta["hover_W"])
+    if "drag_kg_per_m" in theta:
+        robot["drag_coeff_kg_per_m"] = max(0.0, theta["drag_kg_per_m"] * scenario.omega)
+    if "turn_J_per_rad" in theta:
+        robot["turn_coeff_W_s_per_rad"] = max(0.0, theta["turn_J_per_rad"])
+    old = data.get("model", {})
+    table: dict = {"terms": [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]}
+    if "prior_relative_stderr" in old:
+        table["prior_relative_stderr"] = old["prior_relative_stderr"]
+    table.update({k: float(v) for k, v in theta.items()})
+    table["stderr"] = {k: float(v) for k, v in sd.items()}
+    data["model"] = table
+    return data
+
+
+def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) -> Path:
+    """Write the calibrated scenario atomically; it is loaded back before it replaces ``path``.
+
+    Raises
+    ------
+    InputError
+        The output folder does not exist.
+    OrangeError
+        The written file would not load (an internal failure).
+    """
+    path = Path(path)
+    if not path.parent.exists():
+        raise InputError(f"{path}: folder {path.parent} does not exist")
+    text = tomli_w.dumps(calibrated_scenario_dict(scenario, model, path.parent))
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".toml")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        try:
+            load_scenario(tmp)
+        except InputError as exc:
+            raise OrangeError(f"the calibrated scenario does not load: {exc}") from None
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path

@@ -1,0 +1,1 @@
+"""Mission simulator: drive a route under a truth model, write a recording."""

@@ -1,0 +1,123 @@
+"""Routes to drive: a plan GeoJSON's tour (SPEC §4) or a CSV of x_m, y_m[, speed_mps] waypoints."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from orange_plan.errors import InputError
+
+
+@dataclass(frozen=True)
+class Route:
+    """A polyline with a commanded speed per vertex.
+
+    Attributes
+    ----------
+    xy_m : vertices, shape (n, 2) [m]
+    speed_mps : commanded speed per vertex, shape (n,), NaN where the file gave none [m/s]
+    source : where it came from
+    """
+
+    xy_m: np.ndarray
+    speed_mps: np.ndarray
+    source: str
+
+    @property
+    def length_m(self) -> float:
+        """Horizontal length [m]."""
+        return float(np.sum(np.hypot(*np.diff(self.xy_m, axis=0).T)))
+
+    @property
+    def closed(self) -> bool:
+        """True when the route ends where it starts (a tour home -> home)."""
+        return bool(np.hypot(*(self.xy_m[-1] - self.xy_m[0])) < 1e-6)
+
+    def lap(self) -> Route:
+        """A closed route to repeat: itself if closed, else out and back."""
+        if self.closed:
+            return self
+        return Route(np.vstack([self.xy_m, self.xy_m[-2::-1]]),
+                     np.r_[self.speed_mps, self.speed_mps[-2::-1]], self.source)
+
+    def with_default_speed(self, speed_mps: float) -> Route:
+        """Fill vertices without a speed (NaN or <= 0) with ``speed_mps``."""
+        v = np.where(np.isfinite(self.speed_mps) & (self.speed_mps > 0), self.speed_mps, speed_mps)
+        return Route(self.xy_m, v, self.source)
+
+
+def load_route(path: str | Path) -> Route:
+    """Read a plan GeoJSON (the ``tour`` LineString and its ``speed_mps``) or a route CSV.
+
+    Raises
+    ------
+    InputError
+        File missing or unreadable, no tour, fewer than two distinct vertices, non-finite or
+        negative values, speed array of the wrong length.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: route file not found")
+    if path.suffix.lower() in (".geojson", ".json"):
+        xy, speed = _from_plan(path)
+    else:
+        xy, speed = _from_csv(path)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise InputError(f"{path}: route vertices must be finite (x, y) pairs")
+    keep = np.r_[True, np.hypot(*np.diff(xy, axis=0).T) > 1e-9]  # drop repeated vertices
+    xy, speed = xy[keep], speed[keep]
+    if len(xy) < 2:
+        raise InputError(f"{path}: a route needs at least two distinct vertices")
+    if np.any(speed[np.isfinite(speed)] < 0):
+        raise InputError(f"{path}: speed_mps must be >= 0")
+    return Route(xy, speed, str(path))
+
+
+def _from_plan(path: Path):
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    features = data.get("features") if isinstance(data, dict) else None
+    tours = [f for f in features or [] if isinstance(f, dict)
+             and (f.get("properties") or {}).get("kind") == "tour"]
+    if not tours:
+        raise InputError(f"{path}: no feature with kind = 'tour' (SPEC §4 plan)")
+    geom = tours[0].get("geometry") or {}
+    if geom.get("type") != "LineString":
+        raise InputError(f"{path}: the tour must be a LineString, got {geom.get('type')!r}")
+    try:
+        xy = np.asarray([c[:2] for c in geom.get("coordinates", [])], dtype=float).reshape(-1, 2)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: tour coordinates must be numbers") from None
+    speed = (tours[0].get("properties") or {}).get("speed_mps")
+    if speed is None:
+        return xy, np.full(len(xy), np.nan)
+    try:
+        speed = np.asarray(speed, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: tour speed_mps must be numbers") from None
+    if speed.shape != (len(xy),):
+        raise InputError(f"{path}: tour speed_mps has {speed.size} values for {len(xy)} vertices")
+    return xy, speed
+
+
+def _from_csv(path: Path):
+    try:
+        frame = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a readable CSV ({exc})") from None
+    missing = [c for c in ("x_m", "y_m") if c not in frame.columns]
+    if missing:
+        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, speed_mps])")
+    try:
+        xy = frame[["x_m", "y_m"]].to_numpy(dtype=float)
+        speed = (frame["speed_mps"].to_numpy(dtype=float) if "speed_mps" in frame
+                 else np.full(len(frame), np.nan))
+    except ValueError:
+        raise InputError(f"{path}: route columns must hold numbers") from None
+    return xy, speed

@@ -1,0 +1,323 @@
+"""Mission simulator: drive a route under a truth model and produce a recording (SPEC §3).
+
+The power at every sample is the scenario model's own ``EnergyModel.power_W`` evaluated on
+the simulated motion state (no physics is re-typed here). The simulator adds only the
+truth-only effects of ``sim.truth.Truth``: coefficient overrides, wind gusts, a payload change,
+terrain roughness, battery ageing, recording noise and duty-cycle stops.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.signal import lfilter
+
+from orange_plan.errors import InputError
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.pathcost import subdivide
+from orange_plan.physics.state import MotionState
+from orange_plan.sim.route import Route
+from orange_plan.sim.truth import Truth, Wind
+
+MASS_COEFFICIENTS = ("rolling_kg", "grade_kg", "inertia_kg")
+"""Coefficients proportional to the moving mass (m / Omega); ``rolling_kg_<surface>`` too."""
+
+TURN_SPREAD_S = 1.0
+"""A vertex's heading change is spread over this time, as a robot turns smoothly [s]."""
+
+CHUNK_S = 600.0
+"""Simulated time per vectorised power evaluation (depletion is checked per chunk) [s]."""
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """A simulated run.
+
+    Attributes
+    ----------
+    frame : the recording (SPEC §3 columns)
+    energy_J : true battery energy drawn (without recording noise) [J]
+    energy_available_J : the truth's usable energy (scenario E_avail x capacity_factor) [J]
+    distance_m : distance travelled along the path [m]
+    duration_s : mission time [s]
+    moving_time_s : time with non-zero speed [s]
+    depleted : the run stopped because the usable energy was spent
+    laps : number of route laps driven (fractional) [-]
+    """
+
+    frame: pd.DataFrame
+    energy_J: float
+    energy_available_J: float
+    distance_m: float
+    duration_s: float
+    moving_time_s: float
+    depleted: bool
+    laps: float
+
+    def summary(self) -> dict:
+        """The scalar results (for ``--json``)."""
+        return {k: getattr(self, k) for k in (
+            "energy_J", "energy_available_J", "distance_m", "duration_s", "moving_time_s",
+            "depleted", "laps")} | {"samples": len(self.frame)}
+
+
+def truth_model(model: EnergyModel, truth: Truth) -> EnergyModel:
+    """The scenario model with the truth's coefficient overrides.
+
+    Raises
+    ------
+    InputError
+        An override names a coefficient the model does not have.
+    """
+    unknown = [k for k in truth.coefficients if k not in model.names]
+    if unknown:
+        raise InputError(f"truth [coefficients] names '{unknown[0]}', not a coefficient of this "
+                         f"model (have {', '.join(model.names)})")
+    return model.with_theta(truth.coefficients)
+
+
+def with_payload(model: EnergyModel, mass_kg: float, extra_kg: float) -> EnergyModel:
+    """Truth model carrying ``extra_kg`` more: mass coefficients scale by (m + extra) / m and a
+    hover power by ((m + extra) / m) ** 1.5 (momentum theory)."""
+    if extra_kg == 0:
+        return model
+    ratio = (mass_kg + extra_kg) / mass_kg
+    if ratio <= 0:
+        raise InputError(f"payload.extra_kg = {extra_kg} leaves no mass (robot {mass_kg} kg)")
+    theta = model.as_dict()
+    for name, value in theta.items():
+        if name in MASS_COEFFICIENTS or name.startswith("rolling_kg_"):
+            theta[name] = value * ratio
+    if "hover_W" in theta:
+        theta["hover_W"] *= ratio**1.5
+    return model.with_theta(theta)
+
+
+class _Driver:
+    """Point-mass kinematics along a route with accel limits and duty-cycle stops.
+
+    Speeds are along the path; the horizontal arclength advances by ``v cos(grade) dt``.
+    Stops: after ``stop_every_s`` of moving, brake and wait until moving time / mission time
+    has fallen to the duty cycle D, so the whole run keeps that ratio.
+    """
+
+    def __init__(self, edges_m, step_speed, step_cos, accel_max, dt, duty, stop_every_s, repeat):
+        self.edges = list(edges_m)
+        self.length = float(edges_m[-1])
+        self.speed, self.cos = list(step_speed), list(step_cos)
+        self.a, self.dt, self.duty = accel_max, dt, duty
+        self.every, self.repeat = stop_every_s, repeat
+        self.s = self.v = self.t = self.moving = 0.0
+        self.phase, self.next_stop = "move", stop_every_s
+        self.finished = False
+
+    def run(self, n: int) -> dict:
+        out = {k: [] for k in ("t", "s", "v", "accel", "step")}
+        n_steps = len(self.speed)
+        for _ in range(n):
+            if self.finished:
+                break
+            lap_s = self.s % self.length if self.repeat else min(self.s, self.length)
+            j = min(bisect_right(self.edges, lap_s) - 1, n_steps - 1)
+            target = self._target(j)
+            dv = min(max(target - self.v, -self.a * self.dt), self.a * self.dt)
+            v_new = max(0.0, self.v + dv)
+            for key, value in zip(out, (self.t, self.s, self.v, (v_new - self.v) / self.dt, j)):
+                out[key].append(value)
+            advance = 0.5 * (self.v + v_new) * self.dt * self.cos[j]
+            if self.v > 0 or v_new > 0:
+                self.moving += self.dt
+            self.s += advance
+            self.v, self.t = v_new, self.t + self.dt
+            if not self.repeat and self.length - self.s <= 1e-6:
+                self.finished = True
+        return {k: np.asarray(v) for k, v in out.items()}
+
+    def _target(self, j: int) -> float:
+        cruise = self.speed[j]
+        if self.duty < 1.0:
+            if self.phase == "move" and self.moving >= self.next_stop:
+                self.phase = "brake"
+            if self.phase == "brake" and self.v <= 0:
+                self.phase = "stop"
+            if self.phase == "stop" and self.t >= self.moving / self.duty:
+                self.phase, self.next_stop = "move", self.moving + self.every
+            if self.phase != "move":
+                return 0.0
+        if not self.repeat:
+            remaining = max(self.length - self.s, 0.0)
+            # brake to stop at the end; creep at >= 5 % of cruise so the run terminates
+            # (one step of anticipation: the speed follows the cap with a step's lag)
+            brake = math.sqrt(2 * self.a * remaining) - self.a * self.dt
+            return min(cruise, max(brake, 0.05 * cruise))
+        return cruise
+
+
+def _ou(rng, n: int, dt: float, std: float, tau: float, start: np.ndarray) -> np.ndarray:
+    """Ornstein-Uhlenbeck samples (n, 2) continuing from ``start`` (2,), exact discretisation."""
+    phi = math.exp(-dt / tau)
+    noise = rng.standard_normal((n, 2)) * std * math.sqrt(1 - phi**2)
+    return np.stack([lfilter([1.0], [1.0, -phi], noise[:, i], zi=[phi * start[i]])[0]
+                     for i in range(2)], axis=1)
+
+
+def _roughness(rng, length_m: float, std: float, corr_m: float):
+    """A spatially correlated crr perturbation along a lap: (grid_m, values)."""
+    grid = np.arange(0.0, length_m + 0.25, 0.25)
+    if std == 0:
+        return grid, np.zeros_like(grid)
+    phi = math.exp(-0.25 / corr_m)
+    noise = rng.standard_normal(grid.size) * std * math.sqrt(1 - phi**2)
+    noise[0] = rng.standard_normal() * std
+    return grid, lfilter([1.0], [1.0, -phi], noise)
+
+
+def _yaw_rate(heading, last_heading, carry, k: int, dt: float):
+    """Heading increments spread over ``k`` samples (causal box filter) -> yaw rate [rad/s]."""
+    inc = np.diff(np.r_[last_heading, heading])
+    inc = (inc + np.pi) % (2 * np.pi) - np.pi
+    spread = np.convolve(inc, np.ones(k) / k)
+    spread[: carry.size] += carry
+    n = heading.size
+    return spread[:n] / dt, spread[n:]
+
+
+def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
+             sample_rate_Hz: float = 10.0, to_depletion: bool = False,
+             max_duration_s: float = 172_800.0) -> SimResult:
+    """Drive ``route`` in the scenario's world under ``truth`` and record it.
+
+    Parameters
+    ----------
+    ctx : Context (scenario, world, model)
+    route : the route; vertices without a speed get the scenario's simplified-range v_opt
+    truth : truth-only effects (default none: the truth is the planning model)
+    seed : random seed (gusts, roughness, noise)
+    sample_rate_Hz : recording rate [Hz]
+    to_depletion : repeat the route (closed, or out and back) until the truth's usable energy
+        is spent; else drive it once
+    max_duration_s : hard stop on mission time [s]
+
+    Returns
+    -------
+    SimResult
+
+    Notes
+    -----
+    Power per sample: ``truth_model.power_W(state)`` with the true wind (mean + OU gusts), the
+    true crr (map + roughness) and the payload phase; the recorded ``power_W`` adds white
+    noise. Energy drawn is ``sum P dt`` (rectangle rule over the samples).
+    """
+    truth = truth or Truth()
+    if not (sample_rate_Hz > 0 and math.isfinite(sample_rate_Hz)):
+        raise InputError(f"sample_rate_Hz = {sample_rate_Hz!r} must be > 0")
+    scenario, world = ctx.scenario, ctx.world
+    world.check_points(route.xy_m, "route vertex")
+    if np.any(~world.segments_free(route.xy_m[:-1], route.xy_m[1:])):
+        i = int(np.flatnonzero(~world.segments_free(route.xy_m[:-1], route.xy_m[1:]))[0])
+        raise InputError(f"route segment {i} leaves the free space of the map")
+    route = route.with_default_speed(_default_speed(ctx))
+    lap = route.lap() if to_depletion else route
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / sample_rate_Hz
+
+    steps = subdivide(world, lap.xy_m[:-1], lap.xy_m[1:])
+    edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
+    safe_l = np.where(steps.length_m > 0, steps.length_m, 1.0)
+    step_cos = np.where(steps.length_m > 0, steps.horiz_m / safe_l, 1.0)
+    step_sin = np.where(steps.length_m > 0, steps.dz_m / safe_l, 0.0)
+    speed = np.clip(lap.speed_mps[steps.segment], scenario.robot.v_min_mps, None)
+    driver = _Driver(edges, speed, step_cos, scenario.robot.accel_max_mps2, dt,
+                     scenario.mission.duty_cycle, truth.stop_every_s, to_depletion)
+    vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lap.xy_m, axis=0).T))]
+    rough_grid, rough = _roughness(rng, float(edges[-1]), truth.roughness_crr_std,
+                                   truth.roughness_length_m)
+
+    base = truth_model(ctx.model, truth)
+    loaded = with_payload(base, scenario.robot.mass_kg, truth.payload_kg)
+    wind = truth.wind or Wind(scenario.environment.wind_speed_mps,
+                              scenario.environment.wind_from_deg, 0.0, 10.0, True)
+    gust = rng.standard_normal(2) * wind.gust_std_mps
+    e_avail = scenario.battery.usable_J * truth.capacity_factor
+    heading0 = math.atan2(steps.dir_y[0], steps.dir_x[0])
+    carry, k_turn = np.zeros(0), max(1, round(TURN_SPREAD_S / dt))
+
+    chunks, used, depleted = [], 0.0, False
+    per_chunk = max(1, round(CHUNK_S / dt))
+    while not driver.finished and driver.t < max_duration_s and not depleted:
+        kin = driver.run(min(per_chunk, max(1, round((max_duration_s - driver.t) / dt))))
+        if kin["t"].size == 0:
+            break
+        j = kin["step"]
+        s_lap = kin["s"] % edges[-1] if to_depletion else np.minimum(kin["s"], edges[-1])
+        gusts = _ou(rng, j.size, dt, wind.gust_std_mps, wind.gust_tau_s, gust)
+        gust = gusts[-1]
+        wind_xy = np.asarray(wind.mean_xy_mps) + gusts
+        heading = np.arctan2(steps.dir_y[j], steps.dir_x[j])
+        yaw, carry = _yaw_rate(heading, heading0, carry, k_turn, dt)
+        heading0 = heading[-1]
+        crr = np.clip(steps.crr[j] + np.interp(s_lap, rough_grid, rough), 0.0, 1.0)
+        state = MotionState(
+            speed_mps=kin["v"], cos_t=step_cos[j], sin_t=step_sin[j], dir_x=steps.dir_x[j],
+            dir_y=steps.dir_y[j], wind_x_mps=wind_xy[:, 0], wind_y_mps=wind_xy[:, 1], crr=crr,
+            accel_mps2=kin["accel"], yaw_rate_radps=yaw,
+            sensor_rate_Hz=np.full(j.size, scenario.ancillary.sensor_rate_Hz),
+            surface_code=steps.surface_code[j])
+        carrying = kin["t"] >= truth.payload_from_s if truth.payload_kg else np.zeros(j.size, bool)
+        power = np.where(carrying, loaded.power_W(state), base.power_W(state))
+        cum = used + np.cumsum(power) * dt
+        if to_depletion and cum[-1] >= e_avail:
+            n = int(np.searchsorted(cum, e_avail)) + 1
+            depleted = True
+        else:
+            n = j.size
+        used = float(cum[n - 1])
+        chunks.append(_columns(kin, s_lap, vertex_s, lap, world, state, power, carrying,
+                               truth, wind, cum, e_avail, n))
+    frame = pd.concat([pd.DataFrame(c) for c in chunks], ignore_index=True)
+    laps = float(frame.pop("_s").iloc[-1] / edges[-1])
+    _add_noise(frame, rng, truth)
+    distance = float(np.sum(frame["v_mps"]) * dt)
+    return SimResult(frame, used, e_avail, distance, float(len(frame) * dt),
+                     float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps)
+
+
+def _default_speed(ctx) -> float:
+    from orange_plan.physics.range import simplified_range
+
+    return simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr).v_opt_mps
+
+
+def _columns(kin, s_lap, vertex_s, lap, world, state, power, carrying, truth, wind, cum,
+             e_avail, n) -> dict:
+    x = np.interp(s_lap, vertex_s, lap.xy_m[:, 0])
+    y = np.interp(s_lap, vertex_s, lap.xy_m[:, 1])
+    names = world.map.surface_names
+    code = np.asarray(state.surface_code)
+    cols = {
+        "t_s": kin["t"], "x_m": x, "y_m": y, "z_m": world.elevation_at(x, y),
+        "v_mps": kin["v"], "yaw_rate_radps": state.yaw_rate_radps, "accel_mps2": kin["accel"],
+        "power_W": power, "soc": np.clip(1.0 - cum / e_avail, 0.0, 1.0),
+        "payload_kg": np.where(carrying, truth.payload_kg, 0.0),
+        "sensor_rate_Hz": state.sensor_rate_Hz,
+        "surface": np.array([names[c] if c >= 0 else world.default_surface_name for c in code],
+                            dtype=object),
+        "_s": kin["s"],
+    }
+    if wind.recorded:
+        wx, wy = np.asarray(state.wind_x_mps), np.asarray(state.wind_y_mps)
+        cols["wind_mps"] = np.hypot(wx, wy)
+        cols["wind_from_deg"] = np.degrees(np.arctan2(-wx, -wy)) % 360.0
+    return {k: np.asarray(v)[:n] for k, v in cols.items()}
+
+
+def _add_noise(frame: pd.DataFrame, rng, truth: Truth) -> None:
+    if truth.power_std_W:
+        frame["power_W"] += rng.standard_normal(len(frame)) * truth.power_std_W
+    if truth.position_std_m:
+        frame["x_m"] += rng.standard_normal(len(frame)) * truth.position_std_m
+        frame["y_m"] += rng.standard_normal(len(frame)) * truth.position_std_m

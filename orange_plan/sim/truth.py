@@ -1,0 +1,169 @@
+"""The simulator's truth: what the real world does that the planning model does not know.
+
+A TRUTH.toml file holds only the truth-only effects; everything else (the terms, their
+maths, the map) comes from the scenario. Every table and key is optional::
+
+    [coefficients]          # overrides of the lumped coefficients theta (model.names)
+    drag_kg_per_m = 0.35    #   e.g. the real robot is draggier than the scenario says
+
+    [wind]                  # replaces the scenario's [environment] wind
+    mean_mps = 6.0          #   mean wind speed [m/s]
+    from_deg = 270.0        #   meteorological direction it blows from [deg]
+    gust_std_mps = 2.0      #   std of Ornstein-Uhlenbeck gusts on each horizontal axis [m/s]
+    gust_tau_s = 8.0        #   gust correlation time [s]
+    recorded = true         #   write the true wind into wind_mps / wind_from_deg
+
+    [payload]
+    extra_kg = 1.0          #   mass picked up at from_s (negative: dropped) [kg]
+    from_s = 600.0          #   mission time of the change [s]
+
+    [terrain]
+    roughness_crr_std = 0.005  # std of a spatially correlated crr perturbation [-]
+    roughness_length_m = 2.0   # its correlation length along the path [m]
+
+    [battery]
+    capacity_factor = 0.95  #   true usable energy / the scenario's (ageing, cold) [-]
+
+    [noise]
+    power_std_W = 1.0       #   white noise on the recorded power [W]
+    position_std_m = 0.05   #   white noise on the recorded x_m, y_m [m]
+
+    [stops]
+    every_s = 60.0          #   moving time between duty-cycle stops [s]
+
+Notes
+-----
+Payload changes the mass-proportional coefficients (rolling, surface rolling, grade,
+inertia: ``+extra_kg / Omega`` each) and, for a robot with a hover term, scales the hover
+power by ``((m + extra) / m) ** 1.5`` (momentum theory: induced power grows as weight^1.5).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from orange_plan.errors import InputError, close_match_hint
+
+
+@dataclass(frozen=True)
+class Wind:
+    """True wind: mean vector plus Ornstein-Uhlenbeck gusts (see module docstring)."""
+
+    mean_mps: float = 0.0
+    from_deg: float = 0.0
+    gust_std_mps: float = 0.0
+    gust_tau_s: float = 10.0
+    recorded: bool = True
+
+    @property
+    def mean_xy_mps(self) -> tuple[float, float]:
+        """Mean wind vector (x east, y north) [m/s] (SPEC §7 convention)."""
+        rad = math.radians(self.from_deg)
+        return (-self.mean_mps * math.sin(rad), -self.mean_mps * math.cos(rad))
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Truth-only effects of a simulation (all default to "none").
+
+    Attributes
+    ----------
+    coefficients : overrides of the scenario model's lumped coefficients
+    wind : true wind, or None to use the scenario's wind without gusts
+    payload_kg, payload_from_s : mass change and when it happens [kg], [s]
+    roughness_crr_std, roughness_length_m : crr perturbation std [-] and length [m]
+    capacity_factor : true usable energy / scenario usable energy [-]
+    power_std_W, position_std_m : recording noise [W], [m]
+    stop_every_s : moving time between duty-cycle stops [s]
+    """
+
+    coefficients: dict[str, float] = field(default_factory=dict)
+    wind: Wind | None = None
+    payload_kg: float = 0.0
+    payload_from_s: float = 0.0
+    roughness_crr_std: float = 0.0
+    roughness_length_m: float = 2.0
+    capacity_factor: float = 1.0
+    power_std_W: float = 0.0
+    position_std_m: float = 0.0
+    stop_every_s: float = 60.0
+
+
+_SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
+    # table -> key -> (Truth field or "wind.<field>", check)
+    "wind": {"mean_mps": ("wind.mean_mps", ">=0"), "from_deg": ("wind.from_deg", "any"),
+             "gust_std_mps": ("wind.gust_std_mps", ">=0"), "gust_tau_s": ("wind.gust_tau_s", ">0"),
+             "recorded": ("wind.recorded", "bool")},
+    "payload": {"extra_kg": ("payload_kg", "any"), "from_s": ("payload_from_s", ">=0")},
+    "terrain": {"roughness_crr_std": ("roughness_crr_std", ">=0"),
+                "roughness_length_m": ("roughness_length_m", ">0")},
+    "battery": {"capacity_factor": ("capacity_factor", ">0")},
+    "noise": {"power_std_W": ("power_std_W", ">=0"), "position_std_m": ("position_std_m", ">=0")},
+    "stops": {"every_s": ("stop_every_s", ">0")},
+}
+
+
+def load_truth(path: str | Path | None) -> Truth:
+    """Read a TRUTH.toml file (None: no truth-only effects).
+
+    Raises
+    ------
+    InputError
+        Missing file, bad TOML, unknown table or key (with a close-match hint), bad value.
+    """
+    if path is None:
+        return Truth()
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: truth file not found")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid TOML file ({exc})") from None
+    return truth_from_dict(data, str(path))
+
+
+def truth_from_dict(data: dict, where: str = "truth") -> Truth:
+    """Validate a parsed truth mapping (see the module docstring for the format)."""
+    tables = set(_SCHEMA) | {"coefficients"}
+    values: dict[str, Any] = {}
+    wind: dict[str, Any] = {}
+    for table, content in data.items():
+        if table not in tables:
+            raise InputError(f"{where}: unknown table [{table}]" + close_match_hint(table, tables))
+        if not isinstance(content, dict):
+            raise InputError(f"{where}: [{table}] must be a table")
+        if table == "coefficients":
+            values["coefficients"] = {k: _number(v, f"coefficients.{k}", "any", where)
+                                      for k, v in content.items()}
+            continue
+        for key, raw in content.items():
+            if key not in _SCHEMA[table]:
+                raise InputError(f"{where}: unknown key '{table}.{key}'"
+                                 + close_match_hint(key, _SCHEMA[table]))
+            target, check = _SCHEMA[table][key]
+            value = _number(raw, f"{table}.{key}", check, where)
+            if target.startswith("wind."):
+                wind[target[5:]] = value
+            else:
+                values[target] = value
+    if wind:
+        values["wind"] = Wind(**wind)
+    return Truth(**values)
+
+
+def _number(value, dotted: str, check: str, where: str):
+    if check == "bool":
+        if not isinstance(value, bool):
+            raise InputError(f"{where}: {dotted} must be true or false, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"{where}: {dotted} must be a finite number, got {value!r}")
+    if (check == ">=0" and value < 0) or (check == ">0" and value <= 0):
+        bound = ">= 0" if check == ">=0" else "> 0"
+        raise InputError(f"{where}: {dotted} = {value!r} must be {bound}")
+    return float(value)

@@ -1,0 +1,193 @@
+"""Calibration: recovering the truth within the reported uncertainty, the paper's calibration
+experiments (sensor-rate sweep, wheels-up test, drive tests per surface), scenario write-back."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import write_scenario
+
+from orange_plan.context import load_context
+from orange_plan.errors import InputError
+from orange_plan.identify.calibrate import (
+    Calibrator,
+    inflation_factor,
+    model_with_terms,
+    recording_samples,
+)
+from orange_plan.identify.scenario_out import physical_values, write_calibrated_scenario
+from orange_plan.physics.state import MotionState
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import simulate
+from orange_plan.sim.truth import Truth, Wind
+from orange_plan.telemetry.recording import recording_from_frame
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+LOOP = np.array([[1.0, 1.0], [18.0, 1.0], [18.0, 4.0], [1.0, 4.0], [1.0, 1.0]])
+
+
+@pytest.fixture
+def ctx(tmp_path):
+    """The yard with a surface_rolling term and a turning term, a little drag."""
+    path = write_scenario(tmp_path, set={"model.terms": ["surface_rolling"],
+                                         "robot.turn_coeff_W_s_per_rad": 3.0,
+                                         "robot.drag_coeff_kg_per_m": 0.5})
+    return load_context(path)
+
+
+def simulated(ctx, truth, seed, duration_s=900.0):
+    route = Route(LOOP, np.full(len(LOOP), 0.8), "loop")
+    sim = simulate(ctx, route, truth, seed=seed, to_depletion=True, max_duration_s=duration_s)
+    return recording_from_frame(sim.frame, f"sim {seed}")
+
+
+TRUTH = {"rolling_kg": 18.0, "rolling_kg_grass": 11.0, "ancillary_W": 9.5,
+         "turn_J_per_rad": 4.0, "drag_kg_per_m": 0.6}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_calibration_recovers_the_truth_within_its_uncertainty(ctx, seed):
+    truth = Truth(coefficients=TRUTH, power_std_W=0.5, wind=Wind(3.0, 270.0, 0.5, 5.0))
+    cal = Calibrator().fit([simulated(ctx, truth, seed)], ctx)
+    expected = {**ctx.model.as_dict(), **TRUTH}
+    for name, value in cal.theta_.items():
+        assert abs(value - expected[name]) <= 3 * cal.stderr_[name], name
+    # the informative directions are pinned down well, not just "within a wide prior"
+    for name in ("rolling_kg", "rolling_kg_grass", "turn_J_per_rad"):
+        assert cal.stderr_[name] < 0.1 * expected[name], name
+    fit = cal.fit_report_
+    # the noise plus a little mismatch at corners (positions give the heading, smoothed)
+    assert 0.5 * 0.95 < fit.rmse_W < 0.5 * 1.25
+    assert fit.holdout_rmse_W < 0.5 * 1.3
+    assert fit.energy_error_pct < 1.0
+    assert fit.n_holdout > 0 and fit.inflation >= 1.0
+    assert fit.unphysical == ()
+
+
+def test_unphysical_values_are_named():
+    from orange_plan.identify.calibrate import unphysical
+
+    assert unphysical({"ancillary_W": -1.0, "regen_efficiency": 1.2, "rolling_kg": 3.0}) == (
+        "ancillary_W", "regen_efficiency")
+
+
+def test_surface_crr_is_reported_per_surface(ctx):
+    cal = Calibrator().fit([simulated(ctx, Truth(coefficients=TRUTH, power_std_W=0.2), 4)], ctx)
+    m_over_omega = ctx.scenario.robot.mass_kg / ctx.scenario.omega
+    # theta = (m / Omega) x true crr / map crr; grass is 0.1 in the map, default ground 0.05
+    assert cal.surface_crr_["grass"] == pytest.approx(0.1 * 11.0 / m_over_omega, rel=0.05)
+    assert cal.surface_crr_["default"] == pytest.approx(0.05 * 18.0 / m_over_omega, rel=0.05)
+
+
+def sweep_frame(model, rates_Hz, rng, wheels_up=False):
+    """Standing (or wheels-up) robot stepping its sensor rate: power from the model itself."""
+    n = len(rates_Hz)
+    speed = np.full(n, 0.5 if wheels_up else 0.0)
+    state = MotionState(speed_mps=np.zeros(n), sensor_rate_Hz=rates_Hz)
+    power = model.power_W(state) + rng.normal(0, 0.2, n)
+    frame = pd.DataFrame({"t_s": np.arange(n) * 0.1, "power_W": power, "v_mps": speed,
+                          "sensor_rate_Hz": rates_Hz})
+    if wheels_up:
+        frame["wheels_up"] = 1
+    return frame
+
+
+def test_sensor_rate_sweep_separates_s0_and_s1(ctx):
+    truth = ctx.model.with_theta({"ancillary_W": 7.0, "sensor_W_per_Hz": 0.2})
+    rates = np.repeat([0.0, 5.0, 10.0, 20.0, 30.0], 400)
+    rec = recording_from_frame(sweep_frame(truth, rates, np.random.default_rng(0)), "sweep")
+    cal = Calibrator(terms=["ancillary", "sensor_rate"]).fit([rec], ctx)
+    assert cal.theta_["ancillary_W"] == pytest.approx(7.0, abs=3 * cal.stderr_["ancillary_W"])
+    assert cal.theta_["sensor_W_per_Hz"] == pytest.approx(0.2, abs=3 * cal.stderr_["sensor_W_per_Hz"])
+    assert cal.stderr_["sensor_W_per_Hz"] < 0.01
+    physical = physical_values(ctx.scenario, cal.model_)
+    keep = 1 - ctx.scenario.losses.ancillary
+    assert physical["ancillary.s1_W_per_Hz"] == pytest.approx(cal.theta_["sensor_W_per_Hz"] * keep)
+
+
+def test_wheels_up_rows_inform_only_the_power_terms(ctx):
+    truth = ctx.model.with_theta({"ancillary_W": 9.0})
+    rates = np.full(2000, ctx.sensor_rate_Hz)
+    rec = recording_from_frame(sweep_frame(truth, rates, np.random.default_rng(1), True), "up")
+    samples = recording_samples([rec], ctx)
+    assert samples.wheels_up.all()
+    assert np.all(np.asarray(samples.state.speed_mps) == 0)  # wheels spin, the robot does not move
+    cal = Calibrator(fixed=["sensor_W_per_Hz"]).fit([rec], ctx)
+    assert cal.theta_["ancillary_W"] == pytest.approx(9.0, abs=0.05)
+    assert cal.theta_["rolling_kg"] == pytest.approx(ctx.model.coefficient("rolling_kg"))
+    assert cal.fit_report_.wheels_up_W == pytest.approx(np.mean(rec.frame["power_W"]))
+
+
+def test_written_scenario_loads_and_rebuilds_the_fitted_model(ctx, tmp_path):
+    cal = Calibrator().fit([simulated(ctx, Truth(coefficients=TRUTH, power_std_W=0.2), 5)], ctx)
+    out = tmp_path / "sub"
+    out.mkdir()
+    write_calibrated_scenario(ctx.scenario, cal.model_, out / "fitted.toml")
+    again = load_context(out / "fitted.toml")
+    assert again.model.names == cal.model_.names
+    np.testing.assert_allclose(again.model.theta, cal.model_.theta, rtol=1e-12)
+    assert again.model.stderr() == pytest.approx(cal.stderr_)
+    assert again.scenario.robot.turn_coeff_W_s_per_rad == pytest.approx(cal.theta_["turn_J_per_rad"])
+    omega = ctx.scenario.omega
+    assert again.scenario.robot.drag_coeff_kg_per_m == pytest.approx(cal.theta_["drag_kg_per_m"] * omega)
+    assert again.scenario.ancillary_power_W == pytest.approx(
+        cal.theta_["ancillary_W"] + cal.theta_["sensor_W_per_Hz"] * ctx.sensor_rate_Hz)
+
+
+def test_model_with_terms_adds_terms_with_a_prior(ctx):
+    model = model_with_terms(ctx, ["ancillary", "rolling", "inertia"])
+    assert model.names == ("ancillary_W", "rolling_kg", "inertia_kg")
+    assert model.stderr()["inertia_kg"] > 0
+    with pytest.raises(InputError, match="unknown term 'hvca'"):
+        model_with_terms(ctx, ["ancillary", "hvca"])
+
+
+def test_inflation_factor_sees_autocorrelation(ctx):
+    rec = simulated(ctx, Truth(power_std_W=0.2), 6, duration_s=600)
+    samples = recording_samples([rec], ctx)
+    rng = np.random.default_rng(0)
+    white = rng.normal(size=samples.power_W.size)
+    assert inflation_factor(white, samples, 30.0) < 2.0
+    ar = np.zeros_like(white)
+    for i in range(1, ar.size):
+        ar[i] = 0.98 * ar[i - 1] + white[i]
+    assert inflation_factor(ar, samples, 30.0) > 20.0
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"holdout_blocks": 0}, "holdout_blocks = 0 must be a positive integer"),
+    ({"holdout_every": -1}, "holdout_every = -1 must be an integer >= 0"),
+    ({"prior_scale": 0.0}, "prior_scale = 0.0 must be a positive number"),
+    ({"fixed": ["nope"]}, "fixed names unknown coefficient 'nope'"),
+    ({"terms": ["ancillary", "grade", "turning"], "yaw_rate_column": "gyro"}, "no column 'gyro'"),
+])
+def test_bad_settings_are_refused(ctx, kwargs, match):
+    rec = simulated(ctx, Truth(), 0, duration_s=60)
+    with pytest.raises(InputError, match=match):
+        Calibrator(**kwargs).fit([rec], ctx)
+
+
+def test_no_recordings_is_refused(ctx):
+    with pytest.raises(InputError, match="at least one recording"):
+        Calibrator().fit([], ctx)
+
+
+@pytest.mark.skipif(not (DATA / "borealtc").is_dir(), reason="real data not present in ../shared/data")
+def test_real_husky_runs_calibrate_better_than_a_priori():
+    from orange_plan.identify.bench import CALIBRATION_CASES, load_runs, whole_run_energy_J
+
+    repo = Path(__file__).resolve().parents[1]
+    ctx = load_context(repo / "scenarios" / "husky_a200.toml")
+    settings = CALIBRATION_CASES["husky_borealtc"][3]
+    runs = load_runs(DATA, "borealtc", "borealtc/FLOORING/pro_0[0-3].csv")
+    cal = Calibrator(**settings).fit(runs[:2], ctx)
+    prior = model_with_terms(ctx, settings["terms"])
+    for rec in runs[2:]:
+        fitted = abs(whole_run_energy_J(cal.model_, rec, ctx, settings) / rec.energy_J - 1)
+        before = abs(whole_run_energy_J(prior, rec, ctx, settings) / rec.energy_J - 1)
+        assert fitted < before
+        assert fitted < 0.2
+    assert "flooring" in cal.surface_crr_

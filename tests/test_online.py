@@ -1,0 +1,125 @@
+"""Online ORangE: recursive coefficient estimate and remaining range from streamed samples."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import write_scenario
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from orange_plan.context import load_context
+from orange_plan.errors import InputError
+from orange_plan.identify.bench import accuracy_pct, offline_range_m, online_run
+from orange_plan.identify.online import OnlineEstimator, stream
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.state import MotionState
+from orange_plan.physics.terms import TERMS
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import simulate
+from orange_plan.sim.truth import Truth
+from orange_plan.telemetry.recording import motion_state, recording_from_frame
+
+LOOP = np.array([[1.0, 1.0], [18.0, 1.0], [18.0, 4.0], [1.0, 4.0], [1.0, 1.0]])
+
+
+@pytest.fixture
+def ctx(tmp_path):
+    return load_context(write_scenario(tmp_path))
+
+
+def run(ctx, truth, seed=0):
+    sim = simulate(ctx, Route(LOOP, np.full(5, 0.8), "loop"), truth, seed=seed, to_depletion=True)
+    rec = recording_from_frame(sim.frame, "sim")
+    return sim, rec, motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+
+
+def test_online_range_tracks_a_truth_the_offline_estimate_misses(ctx):
+    """Rolling resistance 60 % above the scenario's: the a priori range is too long; after
+    20 % of the run the online estimate has learnt it."""
+    rolling = 1.6 * ctx.model.coefficient("rolling_kg")
+    sim, rec, state = run(ctx, Truth(coefficients={"rolling_kg": rolling}, power_std_W=0.3))
+    est = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J)
+    history = stream(est, state, rec.frame["power_W"], rec.t_s, until_s=0.2 * sim.duration_s)
+    last = history[-1]
+    route = Route(LOOP, np.full(5, 0.8), "loop")
+    offline = accuracy_pct(offline_range_m(ctx, route), sim.distance_m)
+    online = accuracy_pct(last.range_total_m, sim.distance_m)
+    assert online > 97.0 and online > offline + 3.0
+    assert last.theta["rolling_kg"] == pytest.approx(rolling, rel=0.05)
+    assert last.energy_used_J == pytest.approx(np.sum(rec.frame["power_W"][: int(
+        last.t_s * 10)]) * 0.1, rel=1e-3)
+    assert last.energy_remaining_J == pytest.approx(ctx.scenario.battery.usable_J - last.energy_used_J)
+    assert 0 < last.range_remaining_sd_m < 0.05 * last.range_remaining_m
+    # the route-ahead mode (planned path costed with the live coefficients) agrees
+    from orange_plan.physics.pathcost import segments_energy_jacobian, subdivide
+
+    steps = subdivide(ctx.world, LOOP[:-1], LOOP[1:])
+    jac = segments_energy_jacobian(ctx.model, ctx.world, steps, 0.8, ctx.duty_cycle,
+                                   ctx.sensor_rate_Hz).sum(axis=0)
+    ahead = est.estimate(jac, route.length_m)
+    assert accuracy_pct(ahead.range_total_m, sim.distance_m) > 95.0
+
+
+def test_forgetting_follows_a_payload_change(ctx):
+    truth = Truth(payload_kg=20.0, payload_from_s=600.0, power_std_W=0.2)
+    _sim, rec, state = run(ctx, truth, seed=1)
+    slow = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J, memory_s=1e6)
+    fast = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J, memory_s=120.0)
+    for est in (slow, fast):
+        stream(est, state, rec.frame["power_W"], rec.t_s, until_s=1500.0)
+    heavier = ctx.model.coefficient("rolling_kg") * 3.0  # (10 + 20) / 10
+    err_fast = abs(fast.estimate().theta["rolling_kg"] - heavier)
+    err_slow = abs(slow.estimate().theta["rolling_kg"] - heavier)
+    assert err_fast < 0.05 * heavier < err_slow
+
+
+def test_coefficients_the_data_cannot_see_stay_at_the_prior(ctx):
+    _sim, rec, state = run(ctx, Truth(power_std_W=0.2))
+    est = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J)
+    last = stream(est, state, rec.frame["power_W"], rec.t_s, until_s=300.0)[-1]
+    assert last.theta["grade_kg"] == pytest.approx(ctx.model.coefficient("grade_kg"))  # flat yard
+    assert last.stderr["grade_kg"] == pytest.approx(ctx.model.stderr()["grade_kg"], rel=1e-6)
+
+
+def test_bad_input_is_refused(ctx):
+    with pytest.raises(InputError, match="memory_s = 0 must be a positive number"):
+        OnlineEstimator(ctx.model, 1000.0, memory_s=0)
+    est = OnlineEstimator(ctx.model, 1000.0)
+    with pytest.raises(InputError, match="finite power and dt_s >= 0"):
+        est.update(MotionState(speed_mps=np.ones(2)), [1.0, np.nan], 0.1)
+    with pytest.raises(InputError, match="route_length_m must be > 0"):
+        est.estimate(np.ones(len(ctx.model.names)), 0.0)
+
+
+SIMPLE = EnergyModel([TERMS["ancillary"], TERMS["rolling"]], {"ancillary_W": 5.0, "rolling_kg": 10.0},
+                     np.diag([1.0, 4.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(power=st.lists(st.floats(-50, 200), min_size=2, max_size=30),
+       speed=st.floats(0.0, 3.0), energy=st.floats(1.0, 1e5), memory=st.floats(1.0, 1e4))
+def test_remaining_range_is_never_negative(power, speed, energy, memory):
+    est = OnlineEstimator(SIMPLE, energy, memory_s=memory, window_s=5.0)
+    n = len(power)
+    state = MotionState(speed_mps=np.full(n, speed), crr=np.full(n, 0.05))
+    for k in range(0, n, 3):
+        e = est.update(state.with_(speed_mps=state.speed_mps[k:k + 3], crr=state.crr[k:k + 3]),
+                       power[k:k + 3], 0.5)
+        assert e.energy_remaining_J >= 0.0
+        assert not (e.range_remaining_m < 0.0)
+        assert not (e.range_total_m < e.distance_m)
+        assert math.isfinite(e.energy_used_J)
+
+
+@pytest.mark.parametrize("name", ["rusti_v1_box"])
+def test_bench_run_on_a_repo_scenario(name):
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    ctx = load_context(repo / "scenarios" / f"{name}.toml")
+    row = online_run(ctx, {"coefficients": {"rolling_kg": 5.4}}, seed=0, predict_at=(0.2,))
+    assert row.accuracy_online_pct > 97.0
+    assert row.accuracy_online_pct > row.accuracy_offline_pct
