@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from orange_plan.atomic import save_figure
 
 
 def plot_online_traces(traces, path: str | Path) -> Path:
@@ -45,14 +45,4 @@ def plot_online_traces(traces, path: str | Path) -> Path:
         ax.axis("off")
     axes.ravel()[0].legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return save_figure(fig, path, dpi=110)

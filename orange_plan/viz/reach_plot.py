@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from orange_plan.atomic import save_figure
 
 MAX_FIELD_POINTS = 40_000
 """Points of the margin image (the field is queried at each, ~20 us per point)."""
@@ -119,22 +119,4 @@ def plot_reach(reach, field, xs, ys, goals, path: str | Path, title: str) -> Pat
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    return save_atomic(fig, path)
-
-
-def save_atomic(fig, path: str | Path) -> Path:
-    """Save a figure as PNG via a temporary file in the same folder, then rename."""
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return save_figure(fig, path)

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from orange_plan.atomic import save_figure
 
 
 def plot_replay(replay, cumulative_recorded_J, cumulative_predicted_J, path: str | Path,
@@ -46,15 +46,4 @@ def plot_replay(replay, cumulative_recorded_J, cumulative_predicted_J, path: str
     ax_e.grid(alpha=0.3)
     fig.suptitle(title or "recorded vs predicted battery power")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return save_figure(fig, path)
