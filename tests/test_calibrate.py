@@ -190,4 +190,28 @@ def test_real_husky_runs_calibrate_better_than_a_priori():
         before = abs(whole_run_energy_J(prior, rec, ctx, settings) / rec.energy_J - 1)
         assert fitted < before
         assert fitted < 0.2
-    assert "flooring" in cal.surface_crr_
+    # motor-current model (bench): idle draw, Coulomb rolling and scrub torques, all physical
+    assert set(cal.theta_) == {"ancillary_W", "rolling_torque_kg_mps", "turning_torque_W"}
+    assert not cal.fit_report_.unphysical
+
+
+@pytest.mark.skipif(not (DATA / "tum_bmw_i3").is_dir(), reason="real data not present in ../shared/data")
+def test_real_bmw_trips_calibrate_physically():
+    from orange_plan.identify.bench import CALIBRATION_CASES, load_runs, whole_run_energy_J
+
+    repo = Path(__file__).resolve().parents[1]
+    ctx = load_context(repo / "scenarios" / "bmw_i3.toml")
+    settings = CALIBRATION_CASES["bmw_i3_tum"][3]
+    runs = load_runs(DATA, "tum_bmw_i3", "tum_bmw_i3/TripA0[59].csv.gz")
+    cal = Calibrator(**settings).fit(runs, ctx)
+    th = cal.theta_
+    assert not cal.fit_report_.unphysical
+    assert th["hvac_fraction"] == 1.0                      # held at its physical value
+    assert 100.0 < th["ancillary_W"] < 600.0               # 12 V loads; standstill shows ~0.4 kW
+    assert 0.0 < th["drift_W"] < 3000.0                    # cold-start extra power
+    # inertia from the speed's derivative: rotating-mass factor m_eff / m within 1.0..1.15
+    assert 1.0 < th["inertia_kg"] * ctx.scenario.omega / ctx.scenario.robot.mass_kg < 1.15
+    rec = load_runs(DATA, "tum_bmw_i3", "tum_bmw_i3/TripA14.csv.gz")[0]
+    fitted = abs(whole_run_energy_J(cal.model_, rec, ctx, settings) / rec.energy_J - 1)
+    prior = abs(whole_run_energy_J(ctx.model, rec, ctx, settings) / rec.energy_J - 1)
+    assert fitted < prior and fitted < 0.05

@@ -209,3 +209,22 @@ def test_real_bmw_trip():
     wh_per_km = rec.energy_J / 3600 / (rec.distance_m / 1000)
     assert 100.0 < wh_per_km < 250.0                         # an i3 uses ~130-200 Wh/km
     assert rec.frame["v_mps"].max() < 45.0
+
+
+def test_tum_bmw_i3_hvac_and_acceleration_from_speed(tmp_path):
+    # speed 0 -> 36 km/h in 2 s (5 m/s^2); the acceleration sensor reads an offset 0.3 m/s^2
+    header = ("Time [s];Velocity [km/h];Longitudinal Acceleration [m/s^2];Battery Voltage [V];"
+              "Battery Current [A];AirCon Power [kW]\n")
+    rows = "".join(f"{t / 10};{min(t, 20) * 1.8};0.3;380;-10;0.6\n" for t in range(60))
+    path = tmp_path / "TripA97.csv"
+    path.write_text(header + rows, encoding="latin1")
+    frame, _ = read_log(path, "tum_bmw_i3")
+    assert "accel_mps2" not in frame.columns               # the offset sensor is not used ...
+    assert np.allclose(frame["accel_sensor_mps2"], 0.3)     # ... but kept
+    assert np.allclose(frame["hvac_W"], 600.0)              # AirCon Power [kW] -> W
+    rec = recording_from_frame(frame)
+    accel = rec.frame["accel_mps2"].to_numpy()
+    assert accel[8] == pytest.approx(5.0) and accel[40] == pytest.approx(0.0)  # from v_mps
+    state = motion_state(rec)
+    assert np.allclose(state.hvac_W, 600.0)
+    assert state.elapsed_s[0] == 0.0 and state.elapsed_s[-1] == pytest.approx(5.9)

@@ -312,3 +312,13 @@ def test_cleaning_invariants(rows):
     assert len(rec.frame) + dropped == len(df)
     assert 0.0 <= rec.energy_J <= df["power_W"].max() * rec.duration_s + 1e-9
     assert rec.distance_m >= 0.0
+
+
+def test_motion_state_hvac_and_elapsed_time():
+    frame = pd.DataFrame({"t_s": [10.0, 11.0, 12.0], "power_W": 1.0, "v_mps": 2.0,
+                          "hvac_W": [500.0, np.nan, 700.0]})
+    state = motion_state(recording_from_frame(frame))
+    np.testing.assert_allclose(state.elapsed_s, [0.0, 1.0, 2.0])   # time since the start
+    np.testing.assert_allclose(state.hvac_W, [500.0, 0.0, 700.0])  # a missing value counts 0
+    no_hvac = motion_state(recording_from_frame(frame.drop(columns="hvac_W")))
+    np.testing.assert_allclose(no_hvac.hvac_W, 0.0)

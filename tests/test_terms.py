@@ -41,6 +41,10 @@ THETA = {
     "inertia": {"inertia_kg": 12.5},
     "turning": {"turn_J_per_rad": 3.0},
     "regen": {"grade_kg": 12.5, "regen_efficiency": 0.5},
+    "rolling_torque": {"rolling_torque_kg_mps": 140.0},
+    "turning_torque": {"turning_torque_W": 140.0},
+    "hvac": {"hvac_fraction": 0.9},
+    "drift": {"drift_W": 1200.0},
 }
 
 
@@ -185,6 +189,10 @@ OWN_FIELD = {
     "inertia": ("accel_mps2", [-0.3, 0.2, 0.5]),
     "turning": ("yaw_rate_radps", [-1.0, 0.0, 0.4]),
     "regen": ("sin_t", [-0.2, -0.05, 0.1]),
+    "rolling_torque": ("crr", [0.01, 0.05, 0.2]),
+    "turning_torque": ("yaw_rate_radps", [-0.02, 0.0, 0.04]),
+    "hvac": ("hvac_W", [0.0, 400.0, 1500.0]),
+    "drift": ("elapsed_s", [0.0, 600.0, 3600.0]),
 }
 BASE = {"crr": 0.05, "dir_x": 1.0}
 
@@ -300,3 +308,95 @@ def test_validate_accepts_good_state_and_symbols():
     s = MotionState(speed_mps=ca.MX.sym("v"), crr=0.1, sin_t=-0.2, cos_t=0.98)
     assert s.validate() is s
     assert G_MPS2 == 9.81
+
+
+# --- motor-current (torque) terms: rolling_torque, turning_torque -------------------------
+
+
+def test_rolling_torque_hand_value():
+    m = model_for("rolling_torque")
+    # moving: 140 kg m/s * 9.81 * 0.05 N/kg = 68.67 W, whatever the speed
+    assert float(m.power_W(MotionState(speed_mps=0.5, crr=0.05))) == pytest.approx(68.67)
+    assert float(m.power_W(MotionState(speed_mps=1.0, crr=0.05))) == pytest.approx(68.67)
+    # near a stop the Coulomb friction fades: 0.005 / 0.01 = half -> 34.335 W; at rest 0
+    assert float(m.power_W(MotionState(speed_mps=0.005, crr=0.05))) == pytest.approx(34.335)
+    assert float(m.power_W(MotionState(speed_mps=0.0, crr=0.05))) == 0.0
+    # spinning in place turns the wheels too: full 68.67 W
+    spin = MotionState(speed_mps=0.0, crr=0.05, yaw_rate_radps=-0.5)
+    assert float(m.power_W(spin)) == pytest.approx(68.67)
+    # path domain (a power term): 10 m at 0.5 m/s, D = 0.8 -> 25 s -> 1716.75 J
+    e = m.segment_energy(MotionState(speed_mps=0.5, crr=0.05), 10.0, 0.8)
+    assert float(e.total_J) == pytest.approx(1716.75)
+
+
+def test_turning_torque_hand_value():
+    m = model_for("turning_torque")
+    # scrub at constant torque: 140 W while turning, at any turn rate above 0.05 rad/s
+    assert float(m.power_W(MotionState(speed_mps=0.3, yaw_rate_radps=-0.3))) == pytest.approx(140.0)
+    assert float(m.power_W(MotionState(speed_mps=0.0, yaw_rate_radps=1.0))) == pytest.approx(140.0)
+    # 0.02 rad/s: 0.02 / 0.05 = 0.4 of it -> 56 W; straight: nothing
+    assert float(m.power_W(MotionState(speed_mps=0.3, yaw_rate_radps=0.02))) == pytest.approx(56.0)
+    assert float(m.power_W(MotionState(speed_mps=0.3))) == 0.0
+
+
+def test_rolling_torque_bad_non_finite_coefficient():
+    with pytest.raises(InputError, match="coefficients must be finite"):
+        EnergyModel([TERMS["rolling_torque"]], {"rolling_torque_kg_mps": float("inf")})
+
+
+def test_turning_torque_bad_non_finite_yaw_rate():
+    with pytest.raises(InputError, match="yaw_rate_radps holds a non-finite value"):
+        MotionState(speed_mps=1.0, yaw_rate_radps=np.nan).validate()
+
+
+def test_torque_terms_numpy_and_casadi_agree_near_a_stop():
+    import casadi as ca
+
+    m = EnergyModel([TERMS["rolling_torque"], TERMS["turning_torque"]],
+                    {**THETA["rolling_torque"], **THETA["turning_torque"]})
+    speed = np.array([0.0, 0.004, 0.02, 0.5])  # below and above the Coulomb speed
+    kw = {"crr": 0.05, "yaw_rate_radps": np.array([0.0, 0.01, -0.03, 0.4])}
+    v = ca.MX.sym("v", 4)
+    f = ca.Function("p", [v], [m.power_W(MotionState(speed_mps=v, **kw))])
+    np.testing.assert_allclose(np.asarray(f(speed)).ravel(),
+                               m.power_W(MotionState(speed_mps=speed, **kw)), rtol=1e-12)
+
+
+# --- cabin HVAC and warm-up drift (BMW i3 trips) --------------------------------------------
+
+
+def test_hvac_hand_value():
+    m = model_for("hvac")
+    # 0.9 x 1500 W of air conditioning = 1350 W, driving or standing
+    assert float(m.power_W(MotionState(speed_mps=12.0, hvac_W=1500.0))) == pytest.approx(1350.0)
+    assert float(m.power_W(MotionState(speed_mps=0.0, hvac_W=1500.0))) == pytest.approx(1350.0)
+    assert float(m.power_W(MotionState(speed_mps=12.0))) == 0.0  # planning default: no HVAC
+    # path domain (a power term): 100 m at 10 m/s, D = 0.8 -> 12.5 s x 1350 W = 16875 J
+    e = m.segment_energy(MotionState(speed_mps=10.0, hvac_W=1500.0), 100.0, 0.8)
+    assert float(e.total_J) == pytest.approx(16875.0)
+
+
+def test_drift_hand_value():
+    from orange_plan.physics.terms import DRIFT_TAU_S
+
+    m = model_for("drift")
+    assert DRIFT_TAU_S == 1200.0
+    # 1200 W at a cold start, 1200 e^-1 = 441.455 W after tau, 1200 e^-2 = 162.402 W after 2 tau
+    for elapsed, watts in ((0.0, 1200.0), (1200.0, 441.455), (2400.0, 162.402)):
+        s = MotionState(speed_mps=8.0, elapsed_s=elapsed)
+        assert float(m.power_W(s)) == pytest.approx(watts, abs=1e-3)
+    # standing still draws it too (cabin pull-down, pumps)
+    assert float(m.power_W(MotionState(speed_mps=0.0, elapsed_s=1200.0))) == pytest.approx(441.455,
+                                                                                         abs=1e-3)
+
+
+def test_hvac_bad_negative_power():
+    with pytest.raises(InputError, match=r"MotionState.hvac_W = -5 is outside \[0, inf\]"):
+        MotionState(speed_mps=1.0, hvac_W=np.array([100.0, -5.0])).validate()
+
+
+def test_drift_bad_elapsed_time():
+    with pytest.raises(InputError, match=r"MotionState.elapsed_s = -1 is outside"):
+        MotionState(speed_mps=1.0, elapsed_s=-1.0).validate()
+    with pytest.raises(InputError, match="elapsed_s holds a non-finite value"):
+        MotionState(speed_mps=1.0, elapsed_s=np.nan).validate()

@@ -22,12 +22,12 @@ crr factor and masses). Physical keys are clipped at 0 where a fit went negative
 from __future__ import annotations
 
 import os
-import tempfile
 import tomllib
 from pathlib import Path
 
 import tomli_w
 
+from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError, OrangeError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
@@ -109,16 +109,10 @@ def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) ->
     if not path.parent.exists():
         raise InputError(f"{path}: folder {path.parent} does not exist")
     text = tomli_w.dumps(calibrated_scenario_dict(scenario, model, path.parent))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".toml")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+    with atomic_path(path, suffix=".toml") as tmp:
+        tmp.write_text(text, encoding="utf-8")
         try:
             load_scenario(tmp)
         except InputError as exc:
             raise OrangeError(f"the calibrated scenario does not load: {exc}") from None
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path

@@ -44,6 +44,12 @@ def reference_coefficients(scenario) -> dict[str, float]:
         "inertia_kg": robot.mass_kg / omega,
         "turn_J_per_rad": robot.turn_coeff_W_s_per_rad,
         "regen_efficiency": DEFAULT_REGEN_EFFICIENCY,
+        # motor-current terms: free wheel speed ~ the top speed; no a priori scrub (0: no prior)
+        "rolling_torque_kg_mps": robot.mass_kg * robot.v_max_mps / omega,
+        "turning_torque_W": 0.0,
+        # cabin HVAC on the traction battery's bus; no a priori warm-up (0: no prior)
+        "hvac_fraction": 1.0,
+        "drift_W": 0.0,
     }
 
 

@@ -40,3 +40,8 @@ def fmax(x, y):
 def fmin(x, y):
     """Element-wise minimum for numpy or CasADi."""
     return ca.fmin(x, y) if is_symbolic(x, y) else np.minimum(x, y)
+
+
+def exp(x):
+    """Exponential for numpy or CasADi."""
+    return ca.exp(x) if is_symbolic(x) else np.exp(x)

@@ -30,6 +30,8 @@ class MotionState:
     yaw_rate_radps : heading rate [rad/s]
     sensor_rate_Hz : sensor operating frequency [Hz]
     surface_code : integer code of the surface under the robot, -1 for "default ground"
+    hvac_W : cabin heating / air-conditioning electrical power, measured or planned [W]
+    elapsed_s : time since the start of the trip or mission (drivetrain warm-up) [s]
     """
 
     speed_mps: Array
@@ -44,6 +46,8 @@ class MotionState:
     yaw_rate_radps: Array = 0.0
     sensor_rate_Hz: Array = 0.0
     surface_code: Array = -1
+    hvac_W: Array = 0.0
+    elapsed_s: Array = 0.0
 
     def with_(self, **changes) -> MotionState:
         """A copy with some fields replaced."""
@@ -75,6 +79,8 @@ class MotionState:
         _check_range("cos_t", self.cos_t, 0.0, 1.0)
         _check_range("sin_t", self.sin_t, -1.0, 1.0)
         _check_range("sensor_rate_Hz", self.sensor_rate_Hz, 0.0, np.inf)
+        _check_range("hvac_W", self.hvac_W, 0.0, np.inf)
+        _check_range("elapsed_s", self.elapsed_s, 0.0, np.inf)
         return self
 
 

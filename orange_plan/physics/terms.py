@@ -127,6 +127,70 @@ def surface_rolling_term(surface_names: tuple[str, ...]) -> Term:
     )
 
 
+COULOMB_SPEED_MPS = 0.01
+"""Regularisation speed of Coulomb friction: ``sign(v) ~ min(1, |v| / v_c)`` [m/s]. Far below
+any planned speed; it only shapes the start and the stop."""
+COULOMB_YAW_RATE_RADPS = 0.05
+"""Regularisation heading rate of the skid-steer scrub (Coulomb) friction [rad/s]."""
+
+
+def wheels_moving_feature(state: MotionState):
+    """Fraction of Coulomb friction engaged while the wheels turn, 0 at rest, 1 moving [-].
+
+    ``min(1, |v| / v_c + |yaw rate| / w_c)``: a skid-steer spinning in place (v = 0) turns
+    its wheels too.
+    """
+    return (ops.fmin(ops.fabs(state.speed_mps) / COULOMB_SPEED_MPS
+                     + ops.fabs(state.yaw_rate_radps) / COULOMB_YAW_RATE_RADPS, 1.0),)
+
+
+def rolling_torque_feature(state: MotionState):
+    """Rolling force per kg while the wheels turn, whatever their speed: ``g crr cos(theta)
+    min(1, |v|/v_c + |yaw rate|/w_c)`` [N/kg].
+
+    For a log whose "power" is bus voltage x *motor* current (BorealTC: 24 V x |I|): motor
+    current is proportional to torque, so that power is the wheel force times the motor's
+    free (no-load, full-voltage) wheel speed, not times the actual speed. Coefficient
+    ``rolling_torque_kg_mps`` = m v_free / Omega [kg m/s].
+    """
+    return (G_MPS2 * state.crr * state.cos_t * wheels_moving_feature(state)[0],)
+
+
+def turning_torque_feature(state: MotionState):
+    """Skid-steer scrub engaged: ``min(1, |yaw rate| / w_c)`` [-].
+
+    Turning a skid-steer slides its wheels sideways against Coulomb friction: the resisting
+    moment (Wong: mu m g l / 4) hardly depends on the turn rate, so the motor *current* (and a
+    bus voltage x motor current "power") is a constant while turning. Coefficient
+    ``turning_torque_W`` = (2 M_r / B) v_free / Omega [W] (B track width).
+    """
+    return (ops.fmin(ops.fabs(state.yaw_rate_radps) / COULOMB_YAW_RATE_RADPS, 1.0),)
+
+
+DRIFT_TAU_S = 1200.0
+"""Time constant of the warm-up drift [s]: a cold drivetrain (gear oil, bearings), cold tyres
+and the cabin pull-down settle over tens of minutes. Not fitted (it would make the term
+non-linear): chosen by leave-one-run-out cross-validation on fitting trips only (README)."""
+
+
+def hvac_feature(state: MotionState):
+    """Cabin heating / air-conditioning electrical power ``P_hvac`` [W/-] (measured or planned).
+
+    Coefficient ``hvac_fraction`` [-]: the share of that power drawn from the traction battery
+    (1 when the compressor or heater sits on the high-voltage bus, as in an electric car).
+    """
+    return (state.hvac_W + 0.0 * state.speed_mps,)
+
+
+def drift_feature(state: MotionState):
+    """Warm-up fraction ``exp(-t / tau)`` at time t since the start [-] (tau = DRIFT_TAU_S).
+
+    Coefficient ``drift_W`` [W]: the extra battery power at a cold start, decaying as the
+    drivetrain, tyres and cabin reach their working temperature (viscous losses fall).
+    """
+    return (ops.exp(-state.elapsed_s / DRIFT_TAU_S) + 0.0 * state.speed_mps,)
+
+
 TERMS: dict[str, Term] = {
     t.id: t
     for t in (
@@ -148,6 +212,14 @@ TERMS: dict[str, Term] = {
              "skid-steer turning losses per radian of heading change, battery side"),
         Term("regen", "regen", ("regen_efficiency",), regen_feature,
              "fraction of braking/descending mechanical energy recovered"),
+        Term("rolling_torque", "power", ("rolling_torque_kg_mps",), rolling_torque_feature,
+             "rolling force x motor free speed while the wheels turn (motor-current power)"),
+        Term("turning_torque", "power", ("turning_torque_W",), turning_torque_feature,
+             "skid-steer scrub at constant torque while turning (motor-current power)"),
+        Term("hvac", "power", ("hvac_fraction",), hvac_feature,
+             "share of the cabin heating / air-conditioning power drawn from the battery"),
+        Term("drift", "power", ("drift_W",), drift_feature,
+             "extra power at a cold start, decaying with time constant DRIFT_TAU_S"),
     )
 }
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""

@@ -49,14 +49,13 @@ Rules
 from __future__ import annotations
 
 import itertools
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from orange_plan.atomic import atomic_path
 from orange_plan.errors import RecordingError
 from orange_plan.physics.state import MotionState
 
@@ -238,18 +237,11 @@ def write_recording(recording: Recording | pd.DataFrame, path: str | Path) -> Pa
     path = Path(path)
     ext = recording_extension(path)
     frame = recording.frame if isinstance(recording, Recording) else recording
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         if ext in (".parquet", ".pq"):
             frame.to_parquet(tmp, index=False)
         else:
             frame.to_csv(tmp, index=False, compression="gzip" if ext == ".csv.gz" else None)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 
@@ -603,6 +595,8 @@ def motion_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
       world's wind, else none.
     * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
       looked up among the map's surfaces (unknown labels: default); else the default.
+    * Cabin HVAC power: the ``hvac_W`` column (a missing value counts as 0), else 0.
+      Elapsed time (warm-up drift): ``t_s - t_s[0]``.
     """
     frame = recording.frame
     n = len(frame)
@@ -623,6 +617,9 @@ def motion_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
         accel_mps2=frame["accel_mps2"].to_numpy(float),
         yaw_rate_radps=frame["yaw_rate_radps"].to_numpy(float),
         sensor_rate_Hz=rate, surface_code=code,
+        hvac_W=(frame["hvac_W"].fillna(0.0).to_numpy(float) if "hvac_W" in frame.columns
+                else np.zeros(n)),
+        elapsed_s=t - t[0],
     )
 
 

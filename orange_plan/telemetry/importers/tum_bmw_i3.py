@@ -6,14 +6,26 @@ Technology (Steinstraeter et al.), IEEE DataPort, doi 10.21227/6jr9-5235.
 The file is ``;``-separated, latin-1 encoded (degree signs), 10 Hz. Columns are matched by
 their name before the unit bracket, so the garbled degree sign does not matter.
 
-* ``t_s`` = Time [s]; ``v_mps`` = Velocity [km/h] / 3.6; ``z_m`` = Elevation [m];
-  ``accel_mps2`` = Longitudinal Acceleration [m/s^2].
+* ``t_s`` = Time [s]; ``v_mps`` = Velocity [km/h] / 3.6; ``z_m`` = Elevation [m].
+* The Longitudinal Acceleration [m/s^2] sensor is kept as ``accel_sensor_mps2`` but is *not*
+  the recording's ``accel_mps2``: it carries a per-trip offset of -0.06..+0.04 m/s^2 against
+  the derivative of the speed (mounting tilt / gravity on slopes), and over a trip an offset
+  b adds m b x distance to the inertia energy (TripA11: -0.056 m/s^2 x 17.7 km x 1.6 t =
+  -0.4 kWh of 2.7 kWh) and steals the grade's role (fitted grade mass ~0). ``accel_mps2`` is
+  therefore derived from ``v_mps`` (telemetry.recording: moving average, central
+  differences), whose integral telescopes to the kinetic-energy change.
 * The set's battery current is negative while discharging; the recording's convention is
   discharge positive, so ``current_A = -current`` and ``power_W = voltage_V x current_A``.
 * ``battery_C``, ``ambient_C``; ``soc`` = SoC [%] / 100.
+* ``hvac_W`` = AirCon Power [kW] x 1000: the cabin HVAC electrical power (compressor on the
+  high-voltage bus; at standstill battery power = 0.41 kW + 1.1 x AirCon Power over 16 trips).
+  The heater signals are not used: Heating Power CAN holds stale constants (5.32 kW for a
+  whole 30 degC trip), and Requested Heating Power is not the heater's draw either (share
+  0.02 at standstill; while requested, the unexplained power is ~0 in TripA15 but ~1x the
+  request in TripA13): the heater's real draw is not recorded.
 * Extra columns kept: ``heating_W`` = Heating Power CAN [kW] x 1000, ``aircon_W`` = AirCon
-  Power [kW] x 1000 (cabin HVAC, part of the ancillary load), ``throttle_pct``,
-  ``motor_torque_Nm``, ``cabin_C``.
+  Power [kW] x 1000, ``throttle_pct``, ``motor_torque_Nm``, ``cabin_C``,
+  ``accel_sensor_mps2``.
 * No position is recorded.
 """
 
@@ -33,7 +45,7 @@ COLUMNS = {
     "t_s": ("Time", 1.0),
     "v_mps": ("Velocity", 1.0 / KMH_PER_MPS),
     "z_m": ("Elevation", 1.0),
-    "accel_mps2": ("Longitudinal Acceleration", 1.0),
+    "accel_sensor_mps2": ("Longitudinal Acceleration", 1.0),
     "voltage_V": ("Battery Voltage", 1.0),
     "current_A": ("Battery Current", -1.0),
     "battery_C": ("Battery Temperature", 1.0),
@@ -41,6 +53,7 @@ COLUMNS = {
     "ambient_C": ("Ambient Temperature", 1.0),
     "heating_W": ("Heating Power CAN", 1000.0),
     "aircon_W": ("AirCon Power", 1000.0),
+    "hvac_W": ("AirCon Power", 1000.0),
     "throttle_pct": ("Throttle", 1.0),
     "motor_torque_Nm": ("Motor Torque", 1.0),
     "cabin_C": ("Cabin Temperature Sensor", 1.0),
