@@ -94,7 +94,7 @@ OTHER_KEYS = {
 }
 RESERVE_KINDS = {"confidence": "in (0, 1)", "fraction": "in [0, 1)", "energy_J": ">= 0"}
 MODEL_EXTRA_TERMS = ("inertia", "regen", "surface_rolling", "rolling_torque", "turning_torque",
-                     "hvac", "drift")
+                     "hvac", "heater", "drift")
 DEFAULT_REGEN_EFFICIENCY = 0.5
 """Default recovery efficiency for a listed ``regen`` term without a value [-]."""
 DEFAULT_PRIOR_RELATIVE_STDERR = 0.10

@@ -211,7 +211,9 @@ def test_real_bmw_trips_calibrate_physically():
     assert 0.0 < th["drift_W"] < 3000.0                    # cold-start extra power
     # inertia from the speed's derivative: rotating-mass factor m_eff / m within 1.0..1.15
     assert 1.0 < th["inertia_kg"] * ctx.scenario.omega / ctx.scenario.robot.mass_kg < 1.15
-    rec = load_runs(DATA, "tum_bmw_i3", "tum_bmw_i3/TripA14.csv.gz")[0]
+    assert 0.0 < th["heater_fraction"] < 1.0               # a share of the heating request
+    # a held-out trip the a-priori model over-predicts by 17 %
+    rec = load_runs(DATA, "tum_bmw_i3", "tum_bmw_i3/TripA08.csv.gz")[0]
     fitted = abs(whole_run_energy_J(cal.model_, rec, ctx, settings) / rec.energy_J - 1)
     prior = abs(whole_run_energy_J(ctx.model, rec, ctx, settings) / rec.energy_J - 1)
-    assert fitted < prior and fitted < 0.05
+    assert prior > 0.15 and fitted < 0.08

@@ -214,8 +214,9 @@ def test_real_bmw_trip():
 def test_tum_bmw_i3_hvac_and_acceleration_from_speed(tmp_path):
     # speed 0 -> 36 km/h in 2 s (5 m/s^2); the acceleration sensor reads an offset 0.3 m/s^2
     header = ("Time [s];Velocity [km/h];Longitudinal Acceleration [m/s^2];Battery Voltage [V];"
-              "Battery Current [A];AirCon Power [kW]\n")
-    rows = "".join(f"{t / 10};{min(t, 20) * 1.8};0.3;380;-10;0.6\n" for t in range(60))
+              "Battery Current [A];AirCon Power [kW];Requested Heating Power [W]\n")
+    rows = "".join(f"{t / 10};{min(t, 20) * 1.8};0.3;380;-10;0.6;{1000 * (t > 30)}\n"
+                   for t in range(60))
     path = tmp_path / "TripA97.csv"
     path.write_text(header + rows, encoding="latin1")
     frame, _ = read_log(path, "tum_bmw_i3")
@@ -227,4 +228,5 @@ def test_tum_bmw_i3_hvac_and_acceleration_from_speed(tmp_path):
     assert accel[8] == pytest.approx(5.0) and accel[40] == pytest.approx(0.0)  # from v_mps
     state = motion_state(rec)
     assert np.allclose(state.hvac_W, 600.0)
+    assert state.heater_request_W[30] == 0.0 and state.heater_request_W[31] == 1000.0  # [W]
     assert state.elapsed_s[0] == 0.0 and state.elapsed_s[-1] == pytest.approx(5.9)

@@ -17,7 +17,7 @@ FULL_THETA = {
     "rolling_kg_grass": 18.0, "rolling_kg_tile": 11.0, "drag_kg_per_m": 0.4, "grade_kg": 13.9,
     "inertia_kg": 13.9, "turn_J_per_rad": 2.5, "regen_efficiency": 0.6,
     "rolling_torque_kg_mps": 140.0, "turning_torque_W": 140.0,
-    "hvac_fraction": 0.9, "drift_W": 5.0,
+    "hvac_fraction": 0.9, "heater_fraction": 0.3, "drift_W": 5.0,
 }
 
 
@@ -26,7 +26,8 @@ def full_model() -> EnergyModel:
     terms = [TERMS["ancillary"], TERMS["sensor_rate"], TERMS["hover"], TERMS["rolling"],
              surface_rolling_term(("grass", "tile")), TERMS["aero_drag"], TERMS["grade"],
              TERMS["inertia"], TERMS["turning"], TERMS["regen"],
-             TERMS["rolling_torque"], TERMS["turning_torque"], TERMS["hvac"], TERMS["drift"]]
+             TERMS["rolling_torque"], TERMS["turning_torque"], TERMS["hvac"], TERMS["heater"],
+             TERMS["drift"]]
     return EnergyModel(terms, FULL_THETA, omega=OMEGA)
 
 
@@ -41,7 +42,8 @@ def random_state(rng, n: int, speed) -> dict:
         crr=rng.uniform(0.0, 0.2, n), accel_mps2=rng.uniform(-1, 1, n),
         yaw_rate_radps=rng.uniform(-1, 1, n), sensor_rate_Hz=rng.uniform(0, 30, n),
         surface_code=rng.integers(-1, 2, n),
-        hvac_W=rng.uniform(0, 20, n), elapsed_s=rng.uniform(0, 3000, n),
+        hvac_W=rng.uniform(0, 20, n), heater_request_W=rng.uniform(0, 50, n),
+        elapsed_s=rng.uniform(0, 3000, n),
     )
 
 

@@ -44,6 +44,7 @@ THETA = {
     "rolling_torque": {"rolling_torque_kg_mps": 140.0},
     "turning_torque": {"turning_torque_W": 140.0},
     "hvac": {"hvac_fraction": 0.9},
+    "heater": {"heater_fraction": 0.3},
     "drift": {"drift_W": 1200.0},
 }
 
@@ -192,6 +193,7 @@ OWN_FIELD = {
     "rolling_torque": ("crr", [0.01, 0.05, 0.2]),
     "turning_torque": ("yaw_rate_radps", [-0.02, 0.0, 0.04]),
     "hvac": ("hvac_W", [0.0, 400.0, 1500.0]),
+    "heater": ("heater_request_W", [0.0, 3000.0, 7000.0]),
     "drift": ("elapsed_s", [0.0, 600.0, 3600.0]),
 }
 BASE = {"crr": 0.05, "dir_x": 1.0}
@@ -374,6 +376,24 @@ def test_hvac_hand_value():
     # path domain (a power term): 100 m at 10 m/s, D = 0.8 -> 12.5 s x 1350 W = 16875 J
     e = m.segment_energy(MotionState(speed_mps=10.0, hvac_W=1500.0), 100.0, 0.8)
     assert float(e.total_J) == pytest.approx(16875.0)
+
+
+def test_heater_hand_value():
+    m = model_for("heater")
+    # 0.3 x 7000 W requested = 2100 W, driving or standing; no request (planning) -> 0 W
+    assert float(m.power_W(MotionState(speed_mps=15.0, heater_request_W=7000.0))) == pytest.approx(
+        2100.0)
+    assert float(m.power_W(MotionState(speed_mps=0.0, heater_request_W=7000.0))) == pytest.approx(
+        2100.0)
+    assert float(m.power_W(MotionState(speed_mps=15.0))) == 0.0
+    # path domain (a power term): 300 m at 15 m/s, D = 1 -> 20 s x 2100 W = 42000 J
+    e = m.segment_energy(MotionState(speed_mps=15.0, heater_request_W=7000.0), 300.0, 1.0)
+    assert float(e.total_J) == pytest.approx(42000.0)
+
+
+def test_heater_bad_negative_request():
+    with pytest.raises(InputError, match=r"MotionState.heater_request_W = -1 is outside"):
+        MotionState(speed_mps=1.0, heater_request_W=np.array([0.0, -1.0])).validate()
 
 
 def test_drift_hand_value():

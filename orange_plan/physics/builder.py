@@ -50,6 +50,8 @@ def reference_coefficients(scenario) -> dict[str, float]:
         # cabin HVAC on the traction battery's bus; no a priori warm-up (0: no prior)
         "hvac_fraction": 1.0,
         "drift_W": 0.0,
+        # the heater request is a demand: no a priori share (0: no prior, calibrate it)
+        "heater_fraction": 0.0,
     }
 
 

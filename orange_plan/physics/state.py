@@ -31,6 +31,7 @@ class MotionState:
     sensor_rate_Hz : sensor operating frequency [Hz]
     surface_code : integer code of the surface under the robot, -1 for "default ground"
     hvac_W : cabin heating / air-conditioning electrical power, measured or planned [W]
+    heater_request_W : requested cabin heating power (a climate-control demand, not a meter) [W]
     elapsed_s : time since the start of the trip or mission (drivetrain warm-up) [s]
     """
 
@@ -47,6 +48,7 @@ class MotionState:
     sensor_rate_Hz: Array = 0.0
     surface_code: Array = -1
     hvac_W: Array = 0.0
+    heater_request_W: Array = 0.0
     elapsed_s: Array = 0.0
 
     def with_(self, **changes) -> MotionState:
@@ -80,6 +82,7 @@ class MotionState:
         _check_range("sin_t", self.sin_t, -1.0, 1.0)
         _check_range("sensor_rate_Hz", self.sensor_rate_Hz, 0.0, np.inf)
         _check_range("hvac_W", self.hvac_W, 0.0, np.inf)
+        _check_range("heater_request_W", self.heater_request_W, 0.0, np.inf)
         _check_range("elapsed_s", self.elapsed_s, 0.0, np.inf)
         return self
 

@@ -182,6 +182,16 @@ def hvac_feature(state: MotionState):
     return (state.hvac_W + 0.0 * state.speed_mps,)
 
 
+def heater_feature(state: MotionState):
+    """Requested cabin heating power ``P_req`` [W/-] (a demand signal, not the heater's draw).
+
+    Coefficient ``heater_fraction`` [-]: the mean share of the request the high-voltage heater
+    actually draws. The heater cycles and stops once the coolant is warm, so the share is well
+    below 1 and only calibration can tell it (BMW i3 trips: 0.28 +- 0.04; README).
+    """
+    return (state.heater_request_W + 0.0 * state.speed_mps,)
+
+
 def drift_feature(state: MotionState):
     """Warm-up fraction ``exp(-t / tau)`` at time t since the start [-] (tau = DRIFT_TAU_S).
 
@@ -218,6 +228,8 @@ TERMS: dict[str, Term] = {
              "skid-steer scrub at constant torque while turning (motor-current power)"),
         Term("hvac", "power", ("hvac_fraction",), hvac_feature,
              "share of the cabin heating / air-conditioning power drawn from the battery"),
+        Term("heater", "power", ("heater_fraction",), heater_feature,
+             "share of the requested cabin heating power drawn by the high-voltage heater"),
         Term("drift", "power", ("drift_W",), drift_feature,
              "extra power at a cold start, decaying with time constant DRIFT_TAU_S"),
     )

@@ -595,7 +595,8 @@ def motion_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
       world's wind, else none.
     * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
       looked up among the map's surfaces (unknown labels: default); else the default.
-    * Cabin HVAC power: the ``hvac_W`` column (a missing value counts as 0), else 0.
+    * Cabin HVAC power: the ``hvac_W`` column (a missing value counts as 0), else 0; likewise
+      the requested heating power from ``heater_request_W``.
       Elapsed time (warm-up drift): ``t_s - t_s[0]``.
     """
     frame = recording.frame
@@ -617,10 +618,17 @@ def motion_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
         accel_mps2=frame["accel_mps2"].to_numpy(float),
         yaw_rate_radps=frame["yaw_rate_radps"].to_numpy(float),
         sensor_rate_Hz=rate, surface_code=code,
-        hvac_W=(frame["hvac_W"].fillna(0.0).to_numpy(float) if "hvac_W" in frame.columns
-                else np.zeros(n)),
+        hvac_W=_column_or_zero(frame, "hvac_W"),
+        heater_request_W=_column_or_zero(frame, "heater_request_W"),
         elapsed_s=t - t[0],
     )
+
+
+def _column_or_zero(frame: pd.DataFrame, column: str) -> np.ndarray:
+    """A column as floats with missing values as 0, or zeros when the column is absent."""
+    if column not in frame.columns:
+        return np.zeros(len(frame))
+    return frame[column].fillna(0.0).to_numpy(float)
 
 
 def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:

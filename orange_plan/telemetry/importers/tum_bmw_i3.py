@@ -19,10 +19,12 @@ their name before the unit bracket, so the garbled degree sign does not matter.
 * ``battery_C``, ``ambient_C``; ``soc`` = SoC [%] / 100.
 * ``hvac_W`` = AirCon Power [kW] x 1000: the cabin HVAC electrical power (compressor on the
   high-voltage bus; at standstill battery power = 0.41 kW + 1.1 x AirCon Power over 16 trips).
-  The heater signals are not used: Heating Power CAN holds stale constants (5.32 kW for a
-  whole 30 degC trip), and Requested Heating Power is not the heater's draw either (share
-  0.02 at standstill; while requested, the unexplained power is ~0 in TripA15 but ~1x the
-  request in TripA13): the heater's real draw is not recorded.
+* ``heater_request_W`` = Requested Heating Power [W]: the climate control's heating demand.
+  The high-voltage heater's own draw is not recorded (Heating Power CAN holds stale
+  constants, 5.32 kW for a whole 30 degC trip). The request is not the draw either: its
+  unexplained battery power is ~1x the request at its onset in TripA03/A13/A16, ~0.2x later
+  in TripA16 and ~0 while parked in TripA15 (the heater cycles and stops once the coolant is
+  warm), so the ``heater`` term fits one mean share of it.
 * Extra columns kept: ``heating_W`` = Heating Power CAN [kW] x 1000, ``aircon_W`` = AirCon
   Power [kW] x 1000, ``throttle_pct``, ``motor_torque_Nm``, ``cabin_C``,
   ``accel_sensor_mps2``.
@@ -54,6 +56,7 @@ COLUMNS = {
     "heating_W": ("Heating Power CAN", 1000.0),
     "aircon_W": ("AirCon Power", 1000.0),
     "hvac_W": ("AirCon Power", 1000.0),
+    "heater_request_W": ("Requested Heating Power", 1.0),
     "throttle_pct": ("Throttle", 1.0),
     "motor_torque_Nm": ("Motor Torque", 1.0),
     "cabin_C": ("Cabin Temperature Sensor", 1.0),
