@@ -21,7 +21,13 @@ from orange_plan.physics.pathcost import (
     segments_energy_jacobian,
     subdivide,
 )
-from orange_plan.planning.roadmap import EdgeCostContext, Roadmap, add_vertices, energy_field
+from orange_plan.planning.roadmap import (
+    EdgeCostContext,
+    Roadmap,
+    add_vertices,
+    energy_field,
+    ompl_raster_setup,
+)
 
 
 @dataclass(frozen=True)
@@ -142,29 +148,10 @@ def bitstar_path(cost: EdgeCostContext, exact: EdgeCostContext, start_xy, goal_x
     """
     from ompl import base as ob
     from ompl import geometric as og
-    from ompl import util as ou
 
-    ou.setLogLevel(ou.LogLevel.LOG_NONE)
-    ou.RNG.setSeed(int(seed) + 1)
     terrain, world = cost.terrain, cost.world
+    ss, si, space, valid = ompl_raster_setup(world, terrain, seed)
     xmin, ymin, xmax, ymax = world.map.boundary.bounds
-    space = ob.RealVectorStateSpace(2)
-    bounds = ob.RealVectorBounds(2)
-    bounds.setLow(0, xmin)
-    bounds.setLow(1, ymin)
-    bounds.setHigh(0, xmax)
-    bounds.setHigh(1, ymax)
-    space.setBounds(bounds)
-    ss = og.SimpleSetup(space)
-    si = ss.getSpaceInformation()
-    rows, x0, y0, inv = terrain.free_rows, terrain.x0_m, terrain.y0_m, 1.0 / terrain.cell_m
-    n_rows, n_cols = terrain.shape
-
-    def valid(state) -> bool:
-        i, j = int((state[1] - y0) * inv + 0.5), int((state[0] - x0) * inv + 0.5)
-        return 0 <= i < n_rows and 0 <= j < n_cols and rows[i][j]
-
-    ss.setStateValidityChecker(valid)
     extent = float(np.hypot(xmax - xmin, ymax - ymin))
     si.setStateValidityCheckingResolution(min(0.5, 0.5 * terrain.cell_m / extent))
 
@@ -190,7 +177,7 @@ def bitstar_path(cost: EdgeCostContext, exact: EdgeCostContext, start_xy, goal_x
         path = ss.getSolutionPath()
         xy = np.array([[path.getState(i)[0], path.getState(i)[1]]
                        for i in range(path.getStateCount())])
-    del ss, si, space, a, b
+    del ss, si, space, valid, a, b
     if xy is None or not world.segments_free(xy[:-1], xy[1:]).all():
         return None
     return evaluate_path(exact, xy, "BIT*")

@@ -111,21 +111,11 @@ def reverse_steps(steps: Steps) -> Steps:
     return replace(steps, dz_m=-steps.dz_m, dir_x=-steps.dir_x, dir_y=-steps.dir_y)
 
 
-def roadmap_geometry(world, terrain, n_vertices: int, seed: int = 0,
-                     max_neighbors: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Grow an OMPL PRM* roadmap over free space and copy it into numpy.
+def ompl_raster_setup(world, terrain, seed: int = 0):
+    """An OMPL SimpleSetup over the map's bounding box, valid where the occupancy raster is free.
 
-    Parameters
-    ----------
-    world : World (its boundary's bounding box is the sampling domain)
-    terrain : TerrainRasters whose occupancy is the (approximate) validity checker
-    n_vertices : milestones to grow
-    seed : OMPL random seed (same seed, same roadmap)
-
-    Returns
-    -------
-    xy_m : (n, 2) vertices [m]
-    pairs : (p, 2) undirected edges i < j, unique; NOT yet checked exactly
+    Returns ``(ss, si, space, valid)``; the caller keeps all four alive while OMPL runs (the
+    Python validity checker is only referenced from C++) and drops them before returning.
     """
     from ompl import base as ob
     from ompl import geometric as og
@@ -154,6 +144,29 @@ def roadmap_geometry(world, terrain, n_vertices: int, seed: int = 0,
         return 0 <= i < n_rows and 0 <= j < n_cols and rows[i][j]
 
     ss.setStateValidityChecker(valid)
+    return ss, si, space, valid
+
+
+def roadmap_geometry(world, terrain, n_vertices: int, seed: int = 0,
+                     max_neighbors: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Grow an OMPL PRM* roadmap over free space and copy it into numpy.
+
+    Parameters
+    ----------
+    world : World (its boundary's bounding box is the sampling domain)
+    terrain : TerrainRasters whose occupancy is the (approximate) validity checker
+    n_vertices : milestones to grow
+    seed : OMPL random seed (same seed, same roadmap)
+
+    Returns
+    -------
+    xy_m : (n, 2) vertices [m]
+    pairs : (p, 2) undirected edges i < j, unique; NOT yet checked exactly
+    """
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    ss, si, _space, _valid = ompl_raster_setup(world, terrain, seed)  # held until return
     # Edges are re-checked exactly with shapely afterwards (0.3 s for 150k edges): OMPL only
     # needs to test the endpoints, which saves millions of Python validity calls (notes §2).
     si.setStateValidityCheckingResolution(0.999)
