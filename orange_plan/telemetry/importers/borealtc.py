@@ -7,6 +7,13 @@ Forests", arXiv 2403.16877 (IROS 2024), norlab-ulaval/BorealTC, CC0 1.0.
   ``velL``/``velR`` wheel speeds [m/s]. No battery voltage is logged: the Husky bus is
   nominally ``BUS_VOLTAGE_V`` = 24 V, so ``power_W = 24 x (|curL| + |curR|)`` (motor
   electrical power only: the computer and sensors are on other rails and not in this power).
+  The logged currents are never negative (0 of 27,331 samples over the 44 runs): they are
+  clipped at zero, so the ``abs`` changes nothing, and a motor that brakes (is back-driven)
+  reads 0 A. In forward turns (both wheels forward, inner/outer speed ratio < 0.8) the inner
+  wheel reads exactly 0 A in 40 % of samples (mean 1.2 A, outer 9.1 A); in SNOW/pro_26 the
+  inner (left) wheel reads 0 A for 83 % of the run. Braking and any regeneration are
+  therefore invisible in ``power_W``, and a forward turn costs less than a spin in place,
+  where both motors drive against the scrub.
 * ``v_mps = (velL + velR) / 2`` (signed; the recording checks take the magnitude).
 * ``yaw_rate_radps``: IMU ``wz`` (100 Hz) averaged over one ``pro`` interval (centred
   moving average) and interpolated onto the ``pro`` stamps. Without a usable ``imu_NN.csv``
