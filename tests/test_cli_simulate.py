@@ -100,3 +100,24 @@ def test_calibrate_a_real_bmw_trip(tmp_path):
 def test_bench_identify_bad_input(args, message):
     code, stdout, stderr = run_cli(*args)
     assert code == 2 and stdout == "" and message in stderr
+
+
+@pytest.mark.skipif(not (DATA / "borealtc").is_dir(), reason="real data not present in ../shared/data")
+def test_bench_calibration_reports_offline_and_online_on_real_runs(tmp_path):
+    """Four short BorealTC runs (two per fold): the JSON contract of `bench calibration`."""
+    for folder, n in (("ASPHALT", "02"), ("FLOORING", "01"), ("FLOORING", "02"), ("FLOORING", "08")):
+        (tmp_path / "borealtc" / folder).mkdir(parents=True, exist_ok=True)
+        for kind in ("pro", "imu"):
+            src = DATA / "borealtc" / folder / f"{kind}_{n}.csv"
+            (tmp_path / "borealtc" / folder / src.name).symlink_to(src)
+    code, stdout, _ = run_cli("bench", "calibration", "--data", tmp_path, "--only",
+                              "husky_borealtc", "--json")
+    assert code == 0
+    report = json.loads(stdout)
+    (summary,) = report["summary"]
+    assert summary["held_out_runs"] == 4 and len(report["runs"]) == 4
+    for key in ("mean_abs_error_pct", "online_mean_abs_error_pct",
+                "online_mean_abs_error_over_run_pct", "online_prior_mean_abs_error_pct"):
+        assert 0.0 <= summary[key] < 100.0, key
+    row = report["runs"][0]
+    assert row["energy_recorded_J"] > 0 and row["online_error_mean_abs_pct"] >= 0

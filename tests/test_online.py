@@ -123,3 +123,20 @@ def test_bench_run_on_a_repo_scenario(name):
     row = online_run(ctx, {"coefficients": {"rolling_kg": 5.4}}, seed=0, predict_at=(0.2,))
     assert row.accuracy_online_pct > 97.0
     assert row.accuracy_online_pct > row.accuracy_offline_pct
+
+
+def test_online_whole_run_energy_beats_the_offline_model_on_a_wrong_prior(ctx):
+    """Whole-run energy (the real-recording comparison of `bench calibration`): with rolling
+    60 % above the scenario's, the a-priori model under-predicts the run; measured energy so
+    far plus the live coefficients on the motion ahead is within 2 % from 20 % of the run."""
+    from orange_plan.identify.bench import online_energy_errors, whole_run_energy_J
+
+    rolling = 1.6 * ctx.model.coefficient("rolling_kg")
+    _, rec, _ = run(ctx, Truth(coefficients={"rolling_kg": rolling}, power_std_W=0.3))
+    offline = 100 * (whole_run_energy_J(ctx.model, rec, ctx, {}) / rec.energy_J - 1)
+    online = online_energy_errors(ctx.model, rec, ctx, {}, fractions=(0.2, 0.6))
+    assert offline < -10.0                                  # the prior misses the rolling
+    assert len(online) == 2 and max(abs(e) for e in online) < 2.0
+    # with the true model, nothing is left to learn: online = offline = recorded (noise only)
+    exact = ctx.model.with_theta({"rolling_kg": rolling})
+    assert all(abs(e) < 0.5 for e in online_energy_errors(exact, rec, ctx, {}, (0.2,)))

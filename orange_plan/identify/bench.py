@@ -237,7 +237,11 @@ kilowatts of traction noise the fit cannot pin it (0.1-0.8 between halves)."""
 
 @dataclass(frozen=True)
 class CalibrationRow:
-    """One held-out run: recorded vs predicted whole-run energy, calibrated and a priori."""
+    """One held-out run: recorded vs predicted whole-run energy, calibrated and a priori
+    (offline), and online (``online_energy_errors``): ``online_error_pct`` at
+    ``PREDICT_AT[0]`` of the run starting from the calibrated model,
+    ``online_error_mean_abs_pct`` the mean |error| over ``PREDICT_AT``, and
+    ``online_prior_error_pct`` at ``PREDICT_AT[0]`` starting from the a-priori model."""
 
     dataset: str
     fold: int
@@ -246,6 +250,9 @@ class CalibrationRow:
     energy_predicted_J: float
     energy_error_pct: float
     energy_error_prior_pct: float
+    online_error_pct: float
+    online_error_mean_abs_pct: float
+    online_prior_error_pct: float
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -270,6 +277,36 @@ def whole_run_energy_J(model, rec, ctx, settings: dict) -> float:
     return integrate_J(rec, np.asarray(model.power_W(state), float) * np.ones(len(rec.frame)))
 
 
+def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
+                         memory_s: float = 600.0) -> list[float]:
+    """Online whole-run energy prediction on a recording, signed error [%] per fraction.
+
+    The first part of the run streams through ``OnlineEstimator`` (prior = ``model``); at each
+    fraction f of the run's duration the whole-run energy is predicted as the energy measured
+    so far plus the current coefficients' prediction for the rest of the motion (the route
+    ahead is known, as in a planned mission). Errors are (predicted - recorded) / recorded.
+    """
+    from orange_plan.identify.calibrate import recording_state
+    from orange_plan.telemetry.recording import cumulative_J
+
+    state = recording_state(rec, ctx, settings.get("grade_window_m"),
+                            settings.get("yaw_rate_column"))
+    t, power = rec.t_s, rec.frame["power_W"].to_numpy(float)
+    duration = float(t[-1] - t[0])
+    est = OnlineEstimator(model, ctx.scenario.battery.usable_J, memory_s, memory_s)
+    history = stream(est, state, power, t, until_s=max(fractions) * duration)
+    measured = cumulative_J(rec, power)
+    errors = []
+    for f in fractions:
+        pick = min(history, key=lambda h: abs(h.t_s - f * duration))
+        k = min(int(np.searchsorted(t, t[0] + pick.t_s - 1e-9)), t.size - 1)  # samples seen
+        now = model.with_theta(pick.theta)
+        ahead = cumulative_J(rec, np.asarray(now.power_W(state), float) * np.ones(t.size))
+        predicted = measured[k] + ahead[-1] - ahead[k]
+        errors.append(100 * (predicted - measured[-1]) / measured[-1])
+    return errors
+
+
 def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datasets=None,
                           progress=None) -> list[CalibrationRow]:
     """Two-fold run-level hold-out: fit on every other run (sorted by name), predict the
@@ -290,9 +327,12 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
                 recorded = rec.energy_J
                 pred = whole_run_energy_J(cal.model_, rec, ctx, settings)
                 pred0 = whole_run_energy_J(prior, rec, ctx, settings)
+                online = online_energy_errors(cal.model_, rec, ctx, settings)
+                online0 = online_energy_errors(prior, rec, ctx, settings, PREDICT_AT[:1])
                 rows.append(CalibrationRow(name, fold, rec.source, recorded, pred,
                                            100 * (pred - recorded) / recorded,
-                                           100 * (pred0 - recorded) / recorded))
+                                           100 * (pred0 - recorded) / recorded, online[0],
+                                           float(np.mean(np.abs(online))), online0[0]))
             if progress:
                 progress()
     return rows
@@ -314,5 +354,13 @@ def summarise_calibration(rows) -> list[dict]:
             "pooled_error_pct": 100 * (pred - rec) / rec,
             "mean_abs_error_prior_pct": float(np.mean(np.abs([r.energy_error_prior_pct
                                                               for r in mine]))),
+            "online_mean_abs_error_pct": float(np.mean(np.abs([r.online_error_pct
+                                                               for r in mine]))),
+            "online_max_abs_error_pct": float(np.max(np.abs([r.online_error_pct
+                                                             for r in mine]))),
+            "online_mean_abs_error_over_run_pct": float(np.mean([r.online_error_mean_abs_pct
+                                                                 for r in mine])),
+            "online_prior_mean_abs_error_pct": float(np.mean(np.abs(
+                [r.online_prior_error_pct for r in mine]))),
         })
     return out
