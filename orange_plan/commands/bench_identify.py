@@ -57,12 +57,12 @@ def calibration_cmd(data: DataOpt = REPO.parent / "shared" / "data",
         summarise_calibration,
     )
 
-    if not data.is_dir():
-        raise InputError(f"{data}: data folder not found (give --data)")
     names = _split(only) or list(CALIBRATION_CASES)
     unknown = [n for n in names if n not in CALIBRATION_CASES]
     if unknown:
         raise InputError(f"unknown dataset '{unknown[0]}'; known: {', '.join(CALIBRATION_CASES)}")
+    if not data.is_dir():
+        raise InputError(f"{data}: data folder not found (give --data)")
     with _progress(2 * len(names), "calibrating", as_json) as tick:
         rows = calibration_benchmark(data, scenarios, names, progress=tick)
     summary = summarise_calibration(rows)
