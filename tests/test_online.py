@@ -140,3 +140,21 @@ def test_online_whole_run_energy_beats_the_offline_model_on_a_wrong_prior(ctx):
     # with the true model, nothing is left to learn: online = offline = recorded (noise only)
     exact = ctx.model.with_theta({"rolling_kg": rolling})
     assert all(abs(e) < 0.5 for e in online_energy_errors(exact, rec, ctx, {}, (0.2,)))
+
+
+def test_online_energy_per_metre_with_regen_is_the_modelled_energy():
+    """Regen is bilinear in theta, so H.theta alone would count recovered power twice: on a
+    downhill stretch the live energy per metre must equal the model's power integral."""
+    model = EnergyModel([TERMS["ancillary"], TERMS["rolling"], TERMS["grade"], TERMS["regen"]],
+                        {"ancillary_W": 10.0, "rolling_kg": 20.0, "grade_kg": 20.0,
+                         "regen_efficiency": 0.5}, omega=0.8)
+    n = 40
+    sin_t = np.where(np.arange(n) % 2, -0.2, 0.1)          # alternating up and down 1 m/s
+    state = MotionState(speed_mps=np.ones(n), sin_t=sin_t, cos_t=np.sqrt(1 - sin_t**2),
+                        crr=np.full(n, 0.02))
+    power = np.asarray(model.power_W(state), float)
+    assert power.min() < 0                                  # regen recovers downhill
+    est = OnlineEstimator(model, 1e6, memory_s=1e6, window_s=1e6)
+    last = est.update(state, power, 1.0)                    # exact data: theta stays put
+    expected = float(power.sum()) / n                       # [J/m] at 1 m/s, dt = 1 s
+    assert last.energy_per_m_J == pytest.approx(expected, rel=1e-6)

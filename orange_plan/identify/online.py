@@ -23,8 +23,11 @@ replaced by live data (the paper's online ORangE). Here:
    long ones average noise.
 2. Energy: ``E_used`` is the measured battery energy so far (sum of P dt);
    ``E_remaining = max(0, E_avail - E_used)``.
-3. Energy per metre: ``e = (G . theta) / d_w`` with ``G = sum H dt`` and ``d_w = sum v dt``
+3. Energy per metre: ``e = (G . theta + C) / d_w`` with ``G = sum H dt`` and ``d_w = sum v dt``
    over the last ``window_s`` of motion (stops included: the duty cycle is in the data).
+   ``C = sum (P(theta_b) - H theta_b) dt`` at each batch's theta: zero for terms linear in
+   theta; with regen (bilinear: ``H theta`` counts the recovered power twice) it restores
+   the modelled power.
    Its uncertainty adds, in quadrature, the coefficient part ``sqrt(G' P G) / d_w`` and the
    variability of the conditions: the std of ``e`` over ``WINDOW_PARTS`` sub-windows divided
    by sqrt(WINDOW_PARTS) (gusts, terrain and stops make the energy per metre wander; the
@@ -110,7 +113,7 @@ class OnlineEstimator:
         self.cov = model.cov.copy()
         self._noise_var: float | None = None
         self._data_yy = self._data_n = 0.0
-        self._recent: deque = deque()  # (duration_s, distance_m, G) per batch
+        self._recent: deque = deque()  # (duration_s, distance_m, G, C) per batch
         self.t_s = self.energy_used_J = self.distance_m = 0.0
 
     def update(self, state: MotionState, power_W, dt_s) -> OnlineEstimate:
@@ -129,11 +132,14 @@ class OnlineEstimator:
         current = self.model.with_theta(dict(zip(self.model.names, self.theta)))
         jac = np.asarray(current.power_jacobian(state), float).reshape(y.size, -1)
         pred = np.asarray(current.power_W(state), float) * np.ones(y.size)
+        correction_J = float(np.sum((pred - jac @ self.theta) * dt))
         self._learn(jac, y, pred, float(dt.sum()))
         self.t_s += float(dt.sum())
         self.energy_used_J += float(np.sum(y * dt))
         self.distance_m += float(np.sum(speed * dt))
-        self._remember(float(dt.sum()), float(np.sum(speed * dt)), jac.T @ dt)
+        # energy = G.theta + C: C is what G.theta misses where power is not linear-homogeneous
+        # in theta (regen is bilinear: H.theta counts the recovered power twice)
+        self._remember(float(dt.sum()), float(np.sum(speed * dt)), jac.T @ dt, correction_J)
         return self.estimate()
 
     def _learn(self, jac, y, pred, duration_s) -> None:
@@ -158,9 +164,9 @@ class OnlineEstimator:
         unseen = np.diag(info) <= 0
         self.theta[unseen] = self._theta0[unseen]
 
-    def _remember(self, duration_s, distance_m, g) -> None:
-        self._recent.append((duration_s, distance_m, g))
-        span = sum(d for d, _, _ in self._recent)
+    def _remember(self, duration_s, distance_m, g, correction_J) -> None:
+        self._recent.append((duration_s, distance_m, g, correction_J))
+        span = sum(b[0] for b in self._recent)
         while len(self._recent) > 1 and span - self._recent[0][0] >= self.window_s:
             span -= self._recent.popleft()[0]
 
@@ -176,7 +182,7 @@ class OnlineEstimator:
             g = sum((batches[i][2] for i in part), np.zeros(self.theta.size))
             if dist <= 0:
                 return 0.0
-            values.append(float(g @ self.theta) / dist)
+            values.append((float(g @ self.theta) + sum(batches[i][3] for i in part)) / dist)
         return float(np.std(values, ddof=1)) / math.sqrt(WINDOW_PARTS)
 
     def estimate(self, route_jacobian=None, route_length_m: float | None = None) -> OnlineEstimate:
@@ -187,18 +193,22 @@ class OnlineEstimator:
         route_jacobian : optional d(energy)/d theta of the planned route ahead, shape (k,)
             (e.g. ``pathcost.segments_energy_jacobian`` summed): energy per metre is then
             taken on that route with the current theta instead of on the recent motion
+            (``route_jacobian . theta`` is the route's energy only for a model linear in
+            theta, i.e. without ``regen``)
         route_length_m : that route's length [m]
         """
         if route_jacobian is not None:
             if not (route_length_m and route_length_m > 0):
                 raise InputError("route_length_m must be > 0 with a route_jacobian")
             dist, g = float(route_length_m), np.asarray(route_jacobian, float)
+            correction_J = 0.0
         else:
-            dist = sum(d for _, d, _ in self._recent)
-            g = sum((g for _, _, g in self._recent), np.zeros(self.theta.size))
+            dist = sum(b[1] for b in self._recent)
+            g = sum((b[2] for b in self._recent), np.zeros(self.theta.size))
+            correction_J = sum(b[3] for b in self._recent)
         remaining = max(0.0, self.energy_available_J - self.energy_used_J)
         if dist > 0:
-            e = float(g @ self.theta) / dist
+            e = (float(g @ self.theta) + correction_J) / dist
             e_sd = math.hypot(math.sqrt(max(float(g @ self.cov @ g), 0.0)) / dist,
                               0.0 if route_jacobian is not None else self._spread_J_per_m())
         else:
