@@ -129,6 +129,14 @@ def test_heading_changes_wrap_around():
     assert heading_changes_rad(p) == pytest.approx([math.radians(20)])
 
 
+def test_heading_changes_ignore_a_repeated_vertex():
+    # a repeated vertex is not a turn to heading 0: north, (stay), west = one pi/2 turn
+    got = heading_changes_rad([[0, 0], [0, 1], [0, 1], [-1, 1]])
+    assert got.shape == (2,) and got == pytest.approx([0.0, math.pi / 2])
+    lead = heading_changes_rad([[2, 2], [2, 2], [2, 3], [1, 3]])  # leading repeat
+    assert lead == pytest.approx([0.0, math.pi / 2])
+
+
 def test_segments_energy_jacobian_matches_energy(tmp_path):
     world = ramp_world(tmp_path, corner=True)
     model = reference_model()

@@ -165,3 +165,14 @@ def test_breakdown_hover_takes_no_ancillary_loss(tmp_path):
     assert got["ancillary_power_W"] == pytest.approx(8.75 + 40.0)
     assert e["ancillary_loss_eta4_J"] == pytest.approx((e["ancillary_J"] - 40.0 * t) * 0.2)
     assert e["ancillary_loss_eta4_J"] == pytest.approx(8.75 * 0.2 * t)
+
+
+def test_generalised_range_refuses_a_model_that_draws_nothing(tmp_path):
+    from orange_plan.errors import InputError
+    from orange_plan.physics.model import EnergyModel
+    from orange_plan.physics.terms import TERMS
+
+    ctx = load_context(write_scenario(tmp_path))
+    free = EnergyModel([TERMS["ancillary"]], {"ancillary_W": 0.0}, omega=0.8)
+    with pytest.raises(InputError, match=r"energy per metre is 0 J/m \(not positive\)"):
+        generalised_range(ctx.scenario, free, ctx.world)

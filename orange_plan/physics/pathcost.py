@@ -118,6 +118,13 @@ def heading_changes_rad(path_xy) -> np.ndarray:
     p = np.asarray(path_xy, float)
     delta = np.diff(p, axis=0)
     heading = np.arctan2(delta[:, 1], delta[:, 0])
+    # a repeated vertex has no heading of its own: it keeps the one before (or, leading, the
+    # first real one), so it is not counted as a turn to heading 0
+    moving = np.hypot(delta[:, 0], delta[:, 1]) > 0
+    if moving.any() and not moving.all():
+        last = np.maximum.accumulate(np.where(moving, np.arange(moving.size), -1))
+        last[last < 0] = np.argmax(moving)
+        heading = heading[last]
     turn = np.diff(heading)
     return np.abs((turn + np.pi) % (2 * np.pi) - np.pi)
 

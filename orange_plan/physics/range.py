@@ -176,6 +176,9 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None) -> RangeR
 
     v = best_speed(cost_per_m, scenario.robot.v_min_mps, scenario.robot.v_max_mps)
     cost = cost_per_m(v)
+    if not cost > 0:  # nothing drawn per metre (no ancillary power, downhill with regen)
+        raise InputError(f"the a-priori energy per metre is {cost:.3g} J/m (not positive): "
+                         "the range is unbounded; check the ancillary power and regen")
     d = scenario.battery.usable_J / cost
     return RangeResult(d, v, cost, d / (v * duty), "generalised offline (Eq. 11)")
 
