@@ -9,8 +9,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from orange_plan.errors import ScenarioError, close_match_hint
+from orange_plan.errors import InputError, ScenarioError, close_match_hint
 from orange_plan.physics.battery import Battery, Losses
+from orange_plan.physics.wind import wind_vector_mps
 
 ROBOT_KINDS = ("ground", "aerial", "marine")
 REQUIRED = object()
@@ -162,8 +163,8 @@ class Environment:
     @property
     def wind_xy_mps(self) -> tuple[float, float]:
         """Wind vector (x east, y north) from the meteorological direction [m/s] (SPEC §7)."""
-        rad = math.radians(self.wind_from_deg)
-        return (-self.wind_speed_mps * math.sin(rad), -self.wind_speed_mps * math.cos(rad))
+        wx, wy = wind_vector_mps(self.wind_speed_mps, self.wind_from_deg)
+        return float(wx), float(wy)
 
 
 @dataclass(frozen=True)
@@ -212,13 +213,17 @@ def load_scenario(path: str | Path) -> Scenario:
         close-match hint, wrong type, out-of-range value, missing map file).
     """
     path = Path(path)
+    return scenario_from_dict(read_toml(path, "scenario"), path)
+
+
+def read_toml(path: Path, kind: str, error: type[InputError] = ScenarioError) -> dict:
+    """Parse a TOML file; a missing file or bad TOML is one ``error`` line naming the file."""
     if not path.is_file():
-        raise ScenarioError(f"{path}: scenario file not found")
+        raise error(f"{path}: {kind} file not found")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: not a valid TOML file ({exc})") from None
-    return scenario_from_dict(data, path)
+        raise error(f"{path}: not a valid TOML file ({exc})") from None
 
 
 def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:

@@ -32,6 +32,10 @@ from orange_plan.errors import InputError, OrangeError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
 
+WRITTEN_BACK = ("ancillary.s1_W_per_Hz", "robot.hover_W", "robot.drag_coeff_kg_per_m",
+                "robot.turn_coeff_W_s_per_rad")
+"""Physical scenario keys (of ``physical_values``) a calibrated scenario updates, clipped at 0."""
+
 
 def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
     """Physical quantities implied by lumped coefficients (dotted scenario keys or
@@ -66,25 +70,20 @@ def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path) -> dic
     data = tomllib.loads(Path(scenario.path).read_text(encoding="utf-8"))
     data["map"] = Path(os.path.relpath(scenario.map_path, out_dir.resolve())).as_posix()
     theta, sd = model.as_dict(), model.stderr()
-    keep = 1.0 - scenario.losses.ancillary
-    anc = data.setdefault("ancillary", {})
-    robot = data.setdefault("robot", {})
-    if "ancillary_W" in theta:
+    physical = physical_values(scenario, model)
+    if "ancillary_load_W" in physical:
+        anc = data.setdefault("ancillary", {})
         parts = ("s0_W", "compute_W", "comm_W")
         total = sum(float(anc.get(k, 0.0)) for k in parts)
-        target = max(0.0, theta["ancillary_W"] * keep)
+        target = max(0.0, physical["ancillary_load_W"])
         for k in parts:
             anc[k] = float(anc.get(k, 0.0)) * target / total if total > 0 else 0.0
         if total <= 0:
             anc["s0_W"] = target
-    if "sensor_W_per_Hz" in theta:
-        anc["s1_W_per_Hz"] = max(0.0, theta["sensor_W_per_Hz"] * keep)
-    if "hover_W" in theta:
-        robot["hover_W"] = max(0.0, theta["hover_W"])
-    if "drag_kg_per_m" in theta:
-        robot["drag_coeff_kg_per_m"] = max(0.0, theta["drag_kg_per_m"] * scenario.omega)
-    if "turn_J_per_rad" in theta:
-        robot["turn_coeff_W_s_per_rad"] = max(0.0, theta["turn_J_per_rad"])
+    for dotted in WRITTEN_BACK:
+        if dotted in physical:
+            section, key = dotted.split(".")
+            data.setdefault(section, {})[key] = max(0.0, physical[dotted])
     old = data.get("model", {})
     table: dict = {"terms": [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]}
     if "prior_relative_stderr" in old:

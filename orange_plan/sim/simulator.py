@@ -20,6 +20,7 @@ from orange_plan.errors import InputError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import subdivide
 from orange_plan.physics.state import MotionState
+from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
 
@@ -310,8 +311,7 @@ def _columns(kin, s_lap, vertex_s, lap, world, state, power, carrying, truth, wi
     }
     if wind.recorded:
         wx, wy = np.asarray(state.wind_x_mps), np.asarray(state.wind_y_mps)
-        cols["wind_mps"] = np.hypot(wx, wy)
-        cols["wind_from_deg"] = np.degrees(np.arctan2(-wx, -wy)) % 360.0
+        cols["wind_mps"], cols["wind_from_deg"] = wind_speed_and_from(wx, wy)
     return {k: np.asarray(v)[:n] for k, v in cols.items()}
 
 

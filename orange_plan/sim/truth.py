@@ -41,12 +41,13 @@ power by ``((m + extra) / m) ** 1.5`` (momentum theory: induced power grows as w
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, close_match_hint
+from orange_plan.physics.wind import wind_vector_mps
+from orange_plan.scenario import read_toml
 
 
 @dataclass(frozen=True)
@@ -62,8 +63,8 @@ class Wind:
     @property
     def mean_xy_mps(self) -> tuple[float, float]:
         """Mean wind vector (x east, y north) [m/s] (SPEC §7 convention)."""
-        rad = math.radians(self.from_deg)
-        return (-self.mean_mps * math.sin(rad), -self.mean_mps * math.cos(rad))
+        wx, wy = wind_vector_mps(self.mean_mps, self.from_deg)
+        return float(wx), float(wy)
 
 
 @dataclass(frozen=True)
@@ -118,13 +119,7 @@ def load_truth(path: str | Path | None) -> Truth:
     if path is None:
         return Truth()
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: truth file not found")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a valid TOML file ({exc})") from None
-    return truth_from_dict(data, str(path))
+    return truth_from_dict(read_toml(path, "truth", InputError), str(path))
 
 
 def truth_from_dict(data: dict, where: str = "truth") -> Truth:

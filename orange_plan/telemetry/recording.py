@@ -58,6 +58,7 @@ import pandas as pd
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import RecordingError
 from orange_plan.physics.state import MotionState
+from orange_plan.physics.wind import wind_vector_mps
 
 SPEC_COLUMNS = (
     "t_s", "power_W", "voltage_V", "current_A", "x_m", "y_m", "z_m", "v_mps",
@@ -667,9 +668,8 @@ def _direction(frame: pd.DataFrame, t, pieces, speed):
 
 def _wind(frame: pd.DataFrame, world, n: int):
     if "wind_mps" in frame.columns and "wind_from_deg" in frame.columns:
-        w = frame["wind_mps"].to_numpy(float)
-        frm = np.radians(frame["wind_from_deg"].to_numpy(float))
-        return -w * np.sin(frm), -w * np.cos(frm)
+        return wind_vector_mps(frame["wind_mps"].to_numpy(float),
+                               frame["wind_from_deg"].to_numpy(float))
     if world is not None:
         wx, wy = world.wind_xy_mps
         return np.full(n, float(wx)), np.full(n, float(wy))
