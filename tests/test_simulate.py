@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -158,6 +159,16 @@ def test_payload_scales_mass_coefficients(ctx):
     heavy = with_payload(ctx.model, ctx.scenario.robot.mass_kg, ctx.scenario.robot.mass_kg)
     assert heavy.coefficient("rolling_kg") == pytest.approx(2 * ctx.model.coefficient("rolling_kg"))
     assert heavy.coefficient("ancillary_W") == ctx.model.coefficient("ancillary_W")
+
+
+def test_payload_scales_the_motor_current_rolling_torque_too():
+    # the Husky's rolling_torque_kg_mps = m v_max / Omega is mass-proportional as well
+    husky = load_context(Path(__file__).resolve().parents[1] / "scenarios" / "husky_a200.toml")
+    m = husky.scenario.robot.mass_kg
+    heavy = with_payload(husky.model, m, 0.5 * m)
+    assert heavy.coefficient("rolling_torque_kg_mps") == pytest.approx(
+        1.5 * husky.model.coefficient("rolling_torque_kg_mps"))
+    assert heavy.coefficient("turning_torque_W") == husky.model.coefficient("turning_torque_W")
 
 
 def test_same_seed_same_recording(ctx):

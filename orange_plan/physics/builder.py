@@ -26,6 +26,16 @@ def model_coefficient_names(extra_terms: Iterable[str]) -> set[str]:
     return names
 
 
+MASS_COEFFICIENTS = ("rolling_kg", "grade_kg", "inertia_kg", "rolling_torque_kg_mps")
+"""Coefficients proportional to the moving mass (``reference_coefficients``: m / Omega, or
+m v_max / Omega for the rolling torque); per-surface ``rolling_kg_<surface>`` too."""
+
+
+def is_mass_coefficient(name: str) -> bool:
+    """A lumped coefficient that scales with the moving mass (a payload changes it)."""
+    return name in MASS_COEFFICIENTS or name.startswith("rolling_kg_")
+
+
 def reference_coefficients(scenario) -> dict[str, float]:
     """Lumped coefficients of the reference model from a scenario's physical values.
 

@@ -16,16 +16,14 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, close_match_hint
+from orange_plan.physics.builder import is_mass_coefficient
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import subdivide
 from orange_plan.physics.state import MotionState
 from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
-
-MASS_COEFFICIENTS = ("rolling_kg", "grade_kg", "inertia_kg")
-"""Coefficients proportional to the moving mass (m / Omega); ``rolling_kg_<surface>`` too."""
 
 TURN_SPREAD_S = 1.0
 """A vertex's heading change is spread over this time, as a robot turns smoothly [s]."""
@@ -77,7 +75,8 @@ def truth_model(model: EnergyModel, truth: Truth) -> EnergyModel:
     unknown = [k for k in truth.coefficients if k not in model.names]
     if unknown:
         raise InputError(f"truth [coefficients] names '{unknown[0]}', not a coefficient of this "
-                         f"model (have {', '.join(model.names)})")
+                         f"model (have {', '.join(model.names)})"
+                         + close_match_hint(unknown[0], model.names))
     return model.with_theta(truth.coefficients)
 
 
@@ -91,7 +90,7 @@ def with_payload(model: EnergyModel, mass_kg: float, extra_kg: float) -> EnergyM
         raise InputError(f"payload.extra_kg = {extra_kg} leaves no mass (robot {mass_kg} kg)")
     theta = model.as_dict()
     for name, value in theta.items():
-        if name in MASS_COEFFICIENTS or name.startswith("rolling_kg_"):
+        if is_mass_coefficient(name):
             theta[name] = value * ratio
     if "hover_W" in theta:
         theta["hover_W"] *= ratio**1.5

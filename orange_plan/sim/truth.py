@@ -33,8 +33,8 @@ maths, the map) comes from the scenario. Every table and key is optional::
 
 Notes
 -----
-Payload changes the mass-proportional coefficients (rolling, surface rolling, grade,
-inertia: ``+extra_kg / Omega`` each) and, for a robot with a hover term, scales the hover
+Payload scales the mass-proportional coefficients (``physics.builder.MASS_COEFFICIENTS``:
+rolling, surface rolling, grade, inertia, rolling torque) by ``(m + extra) / m`` and, for a robot with a hover term, scales the hover
 power by ``((m + extra) / m) ** 1.5`` (momentum theory: induced power grows as weight^1.5).
 """
 
