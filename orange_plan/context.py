@@ -27,6 +27,13 @@ class Context:
     def duty_cycle(self) -> float:
         return self.scenario.mission.duty_cycle
 
+    @property
+    def cruise_speed_mps(self) -> float:
+        """Default speed of planning and simulation: the simplified range's v_opt [m/s]."""
+        from orange_plan.physics.range import simplified_range
+
+        return simplified_range(self.scenario, self.model, self.world.default_crr).v_opt_mps
+
 
 def load_context(scenario_path: str | Path) -> Context:
     """Load a scenario, its map (and raster) and build its EnergyModel.

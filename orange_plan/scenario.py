@@ -11,6 +11,7 @@ from typing import Any
 
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
 from orange_plan.physics.battery import Battery, Losses
+from orange_plan.physics.terms import EXTRA_TERM_IDS
 from orange_plan.physics.wind import wind_vector_mps
 
 ROBOT_KINDS = ("ground", "aerial", "marine")
@@ -94,8 +95,7 @@ OTHER_KEYS = {
     "mission": {"home_xy_m", "reserve"},
 }
 RESERVE_KINDS = {"confidence": "in (0, 1)", "fraction": "in [0, 1)", "energy_J": ">= 0"}
-MODEL_EXTRA_TERMS = ("inertia", "regen", "surface_rolling", "rolling_torque", "turning_torque",
-                     "hvac", "heater", "drift")
+MODEL_EXTRA_TERMS = EXTRA_TERM_IDS
 DEFAULT_REGEN_EFFICIENCY = 0.5
 """Default recovery efficiency for a listed ``regen`` term without a value [-]."""
 DEFAULT_PRIOR_RELATIVE_STDERR = 0.10

@@ -124,9 +124,8 @@ LAP_FRACTION = 0.1
 def bench_route(ctx):
     """The probe route at the scenario's v_opt, rays cut so a lap is <= LAP_FRACTION of the
     offline range (a long field would otherwise never complete one lap)."""
-    from orange_plan.sim.simulator import _default_speed
 
-    speed = _default_speed(ctx)
+    speed = ctx.cruise_speed_mps
     full = probe_route(ctx).with_default_speed(speed)
     cap = LAP_FRACTION * offline_range_m(ctx, full) / (2 * N_RAYS)
     return probe_route(ctx, max_ray_m=cap).with_default_speed(speed)

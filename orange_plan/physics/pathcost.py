@@ -44,14 +44,27 @@ class Steps:
     surface_code: np.ndarray
     n_segments: int
 
+    @property
+    def cos_t(self) -> np.ndarray:
+        """Cosine of each sub-step's grade (1 for a zero-length step) [-]."""
+        return np.where(self.length_m > 0, self.horiz_m / self._safe_length_m, 1.0)
+
+    @property
+    def sin_t(self) -> np.ndarray:
+        """Sine of each sub-step's grade, uphill positive (0 for a zero-length step) [-]."""
+        return np.where(self.length_m > 0, self.dz_m / self._safe_length_m, 0.0)
+
+    @property
+    def _safe_length_m(self) -> np.ndarray:
+        return np.where(self.length_m > 0, self.length_m, 1.0)
+
     def state(self, speed_mps, wind_xy_mps=(0.0, 0.0), sensor_rate_Hz=0.0) -> MotionState:
         """MotionState of every sub-step at per-segment (or scalar) speeds."""
         speed = np.broadcast_to(np.asarray(speed_mps, float), (self.n_segments,))[self.segment]
-        safe_l = np.where(self.length_m > 0, self.length_m, 1.0)
         return MotionState(
             speed_mps=speed,
-            cos_t=np.where(self.length_m > 0, self.horiz_m / safe_l, 1.0),
-            sin_t=np.where(self.length_m > 0, self.dz_m / safe_l, 0.0),
+            cos_t=self.cos_t,
+            sin_t=self.sin_t,
             dir_x=self.dir_x,
             dir_y=self.dir_y,
             wind_x_mps=wind_xy_mps[0],
@@ -125,8 +138,12 @@ def heading_changes_rad(path_xy) -> np.ndarray:
         last = np.maximum.accumulate(np.where(moving, np.arange(moving.size), -1))
         last[last < 0] = np.argmax(moving)
         heading = heading[last]
-    turn = np.diff(heading)
-    return np.abs((turn + np.pi) % (2 * np.pi) - np.pi)
+    return np.abs(wrap_pi(np.diff(heading)))
+
+
+def wrap_pi(angle_rad):
+    """Angles wrapped into [-pi, pi) [rad]: the shorter way round."""
+    return (angle_rad + np.pi) % (2 * np.pi) - np.pi
 
 
 def segments_energy(

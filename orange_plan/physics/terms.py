@@ -62,19 +62,29 @@ class Term:
 # --- features: one small pure function per physics term --------------------------------
 
 
+def _per_sample(value, state: MotionState):
+    """``value`` broadcast to one entry per sample (the shape of the speed), numpy or CasADi."""
+    return value + 0.0 * state.speed_mps
+
+
+def rolling_per_kg(state: MotionState):
+    """``g crr cos(theta)`` [N/kg]: the rolling force per kg every rolling term scales."""
+    return G_MPS2 * state.crr * state.cos_t
+
+
 def one_feature(state: MotionState):
     """Constant 1: a power drawn whatever the motion [W/W]."""
-    return (1.0 + 0.0 * state.speed_mps,)
+    return (_per_sample(1.0, state),)
 
 
 def sensor_rate_feature(state: MotionState):
     """Sensor operating frequency f_s [Hz] (the paper's Eq. 5: P_sense = s0 + s1 f_s)."""
-    return (state.sensor_rate_Hz + 0.0 * state.speed_mps,)
+    return (_per_sample(state.sensor_rate_Hz, state),)
 
 
 def rolling_feature(state: MotionState):
     """Rolling resistance per unit m/Omega: ``g crr cos(theta)`` [N/kg] (Eq. 1)."""
-    return (G_MPS2 * state.crr * state.cos_t,)
+    return (rolling_per_kg(state),)
 
 
 def aero_drag_feature(state: MotionState):
@@ -89,12 +99,12 @@ def aero_drag_feature(state: MotionState):
 
 def grade_feature(state: MotionState):
     """Weight component along the slope per unit m/Omega: ``g sin(theta)`` [N/kg] (Eq. 1)."""
-    return (G_MPS2 * state.sin_t + 0.0 * state.speed_mps,)
+    return (_per_sample(G_MPS2 * state.sin_t, state),)
 
 
 def inertia_feature(state: MotionState):
     """Force to accelerate per unit m/Omega: ``dv/dt`` [N/kg]."""
-    return (state.accel_mps2 + 0.0 * state.speed_mps,)
+    return (_per_sample(state.accel_mps2, state),)
 
 
 def turning_feature(state: MotionState):
@@ -104,7 +114,7 @@ def turning_feature(state: MotionState):
 
 def regen_feature(state: MotionState):
     """Regen has no feature of its own: it scales the negative net traction (EnergyModel)."""
-    return (0.0 * state.speed_mps,)
+    return (_per_sample(0.0, state),)
 
 
 def surface_rolling_term(surface_names: tuple[str, ...]) -> Term:
@@ -115,7 +125,7 @@ def surface_rolling_term(surface_names: tuple[str, ...]) -> Term:
     """
 
     def feature(state: MotionState):
-        base = G_MPS2 * state.crr * state.cos_t
+        base = rolling_per_kg(state)
         return tuple(base * (state.surface_code == code) for code in range(len(surface_names)))
 
     return Term(
@@ -134,14 +144,14 @@ COULOMB_YAW_RATE_RADPS = 0.05
 """Regularisation heading rate of the skid-steer scrub (Coulomb) friction [rad/s]."""
 
 
-def wheels_moving_feature(state: MotionState):
+def _wheels_moving(state: MotionState):
     """Fraction of Coulomb friction engaged while the wheels turn, 0 at rest, 1 moving [-].
 
     ``min(1, |v| / v_c + |yaw rate| / w_c)``: a skid-steer spinning in place (v = 0) turns
     its wheels too.
     """
-    return (ops.fmin(ops.fabs(state.speed_mps) / COULOMB_SPEED_MPS
-                     + ops.fabs(state.yaw_rate_radps) / COULOMB_YAW_RATE_RADPS, 1.0),)
+    return ops.fmin(ops.fabs(state.speed_mps) / COULOMB_SPEED_MPS
+                    + ops.fabs(state.yaw_rate_radps) / COULOMB_YAW_RATE_RADPS, 1.0)
 
 
 def rolling_torque_feature(state: MotionState):
@@ -153,7 +163,7 @@ def rolling_torque_feature(state: MotionState):
     free (no-load, full-voltage) wheel speed, not times the actual speed. Coefficient
     ``rolling_torque_kg_mps`` = m v_free / Omega [kg m/s].
     """
-    return (G_MPS2 * state.crr * state.cos_t * wheels_moving_feature(state)[0],)
+    return (rolling_per_kg(state) * _wheels_moving(state),)
 
 
 def turning_torque_feature(state: MotionState):
@@ -179,7 +189,7 @@ def hvac_feature(state: MotionState):
     Coefficient ``hvac_fraction`` [-]: the share of that power drawn from the traction battery
     (1 when the compressor or heater sits on the high-voltage bus, as in an electric car).
     """
-    return (state.hvac_W + 0.0 * state.speed_mps,)
+    return (_per_sample(state.hvac_W, state),)
 
 
 def heater_feature(state: MotionState):
@@ -189,7 +199,7 @@ def heater_feature(state: MotionState):
     actually draws. The heater cycles and stops once the coolant is warm, so the share is well
     below 1 and only calibration can tell it (BMW i3 trips: 0.28 +- 0.04; README).
     """
-    return (state.heater_request_W + 0.0 * state.speed_mps,)
+    return (_per_sample(state.heater_request_W, state),)
 
 
 def drift_feature(state: MotionState):
@@ -198,7 +208,7 @@ def drift_feature(state: MotionState):
     Coefficient ``drift_W`` [W]: the extra battery power at a cold start, decaying as the
     drivetrain, tyres and cabin reach their working temperature (viscous losses fall).
     """
-    return (ops.exp(-state.elapsed_s / DRIFT_TAU_S) + 0.0 * state.speed_mps,)
+    return (_per_sample(ops.exp(-state.elapsed_s / DRIFT_TAU_S), state),)
 
 
 TERMS: dict[str, Term] = {
@@ -236,6 +246,13 @@ TERMS: dict[str, Term] = {
 }
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""
 
+REFERENCE_TERM_IDS = ("ancillary", "sensor_rate", "hover", "rolling", "aero_drag", "grade",
+                      "turning")
+"""SPEC §7's reference model: switched on by the scenario's physical values
+(``builder.reference_term_ids``)."""
+EXTRA_TERM_IDS = (*(t for t in TERMS if t not in REFERENCE_TERM_IDS), "surface_rolling")
+"""Terms a scenario adds through ``[model] terms``: every other vocabulary term."""
+
 
 def default_ground_rolling_feature(state: MotionState):
     """Rolling per unit m/Omega on default ground only (``surface_code < 0``) [N/kg].
@@ -243,7 +260,7 @@ def default_ground_rolling_feature(state: MotionState):
     EnergyModel uses it for ``rolling`` whenever ``surface_rolling`` is present, so a point on
     a surface polygon is charged by its surface coefficient alone, not twice.
     """
-    return (G_MPS2 * state.crr * state.cos_t * (state.surface_code < 0),)
+    return (rolling_per_kg(state) * (state.surface_code < 0),)
 
 
 ROLLING_DEFAULT_GROUND = Term(

@@ -26,7 +26,6 @@ from scipy.stats import norm
 
 from orange_plan.errors import InputError
 from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
-from orange_plan.physics.range import simplified_range
 from orange_plan.planning.paths import clean_polyline, evaluate_path, path_gradient
 from orange_plan.planning.roadmap import (
     EdgeCostContext,
@@ -117,7 +116,7 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None):
     """
     sc = ctx.scenario
     if speed_mps is None:
-        speed_mps = simplified_range(sc, ctx.model, ctx.world.default_crr).v_opt_mps
+        speed_mps = ctx.cruise_speed_mps
     if not sc.robot.v_min_mps <= speed_mps <= sc.robot.v_max_mps:
         raise InputError(f"speed {speed_mps:g} m/s is outside [v_min_mps, v_max_mps] = "
                          f"[{sc.robot.v_min_mps:g}, {sc.robot.v_max_mps:g}]")

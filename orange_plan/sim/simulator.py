@@ -19,7 +19,7 @@ from scipy.signal import lfilter
 from orange_plan.errors import InputError, close_match_hint
 from orange_plan.physics.builder import is_mass_coefficient
 from orange_plan.physics.model import EnergyModel
-from orange_plan.physics.pathcost import subdivide
+from orange_plan.physics.pathcost import subdivide, wrap_pi
 from orange_plan.physics.state import MotionState
 from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
@@ -178,8 +178,7 @@ def _roughness(rng, length_m: float, std: float, corr_m: float):
 
 def _yaw_rate(heading, last_heading, carry, k: int, dt: float):
     """Heading increments spread over ``k`` samples (causal box filter) -> yaw rate [rad/s]."""
-    inc = np.diff(np.r_[last_heading, heading])
-    inc = (inc + np.pi) % (2 * np.pi) - np.pi
+    inc = wrap_pi(np.diff(np.r_[last_heading, heading]))
     spread = np.convolve(inc, np.ones(k) / k)
     spread[: carry.size] += carry
     n = heading.size
@@ -217,33 +216,32 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
         raise InputError(f"sample_rate_Hz = {sample_rate_Hz!r} must be > 0")
     scenario, world = ctx.scenario, ctx.world
     world.check_points(route.xy_m, "route vertex")
-    if np.any(~world.segments_free(route.xy_m[:-1], route.xy_m[1:])):
-        i = int(np.flatnonzero(~world.segments_free(route.xy_m[:-1], route.xy_m[1:]))[0])
+    free = world.segments_free(route.xy_m[:-1], route.xy_m[1:])
+    if not free.all():
+        i = int(np.argmin(free))
         raise InputError(f"route segment {i} leaves the free space of the map")
-    route = route.with_default_speed(_default_speed(ctx))
+    route = route.with_default_speed(ctx.cruise_speed_mps)
     lap = route.lap() if to_depletion else route
     rng = np.random.default_rng(seed)
     dt = 1.0 / sample_rate_Hz
 
     steps = subdivide(world, lap.xy_m[:-1], lap.xy_m[1:])
     edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
-    safe_l = np.where(steps.length_m > 0, steps.length_m, 1.0)
-    step_cos = np.where(steps.length_m > 0, steps.horiz_m / safe_l, 1.0)
-    step_sin = np.where(steps.length_m > 0, steps.dz_m / safe_l, 0.0)
+    step_cos, step_sin = steps.cos_t, steps.sin_t
+    step_heading = np.arctan2(steps.dir_y, steps.dir_x)
     speed = np.clip(lap.speed_mps[steps.segment], scenario.robot.v_min_mps, None)
     driver = _Driver(edges, speed, step_cos, scenario.robot.accel_max_mps2, dt,
-                     scenario.mission.duty_cycle, truth.stop_every_s, to_depletion)
+                     ctx.duty_cycle, truth.stop_every_s, to_depletion)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lap.xy_m, axis=0).T))]
     rough_grid, rough = _roughness(rng, float(edges[-1]), truth.roughness_crr_std,
                                    truth.roughness_length_m)
 
     base = truth_model(ctx.model, truth)
     loaded = with_payload(base, scenario.robot.mass_kg, truth.payload_kg)
-    wind = truth.wind or Wind(scenario.environment.wind_speed_mps,
-                              scenario.environment.wind_from_deg, 0.0, 10.0, True)
+    wind = truth.wind or Wind(scenario.environment.wind_speed_mps, scenario.environment.wind_from_deg)
     gust = rng.standard_normal(2) * wind.gust_std_mps
     e_avail = scenario.battery.usable_J * truth.capacity_factor
-    heading0 = math.atan2(steps.dir_y[0], steps.dir_x[0])
+    heading0 = step_heading[0]
     carry, k_turn = np.zeros(0), max(1, round(TURN_SPREAD_S / dt))
 
     chunks, used, depleted = [], 0.0, False
@@ -257,7 +255,7 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
         gusts = _ou(rng, j.size, dt, wind.gust_std_mps, wind.gust_tau_s, gust)
         gust = gusts[-1]
         wind_xy = np.asarray(wind.mean_xy_mps) + gusts
-        heading = np.arctan2(steps.dir_y[j], steps.dir_x[j])
+        heading = step_heading[j]
         yaw, carry = _yaw_rate(heading, heading0, carry, k_turn, dt)
         heading0 = heading[-1]
         crr = np.clip(steps.crr[j] + np.interp(s_lap, rough_grid, rough), 0.0, 1.0)
@@ -265,10 +263,12 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
             speed_mps=kin["v"], cos_t=step_cos[j], sin_t=step_sin[j], dir_x=steps.dir_x[j],
             dir_y=steps.dir_y[j], wind_x_mps=wind_xy[:, 0], wind_y_mps=wind_xy[:, 1], crr=crr,
             accel_mps2=kin["accel"], yaw_rate_radps=yaw,
-            sensor_rate_Hz=np.full(j.size, scenario.ancillary.sensor_rate_Hz),
+            sensor_rate_Hz=np.full(j.size, ctx.sensor_rate_Hz),
             surface_code=steps.surface_code[j])
         carrying = kin["t"] >= truth.payload_from_s if truth.payload_kg else np.zeros(j.size, bool)
-        power = np.where(carrying, loaded.power_W(state), base.power_W(state))
+        power = base.power_W(state)
+        if carrying.any():  # the loaded model only where the payload is on board
+            power = np.where(carrying, loaded.power_W(state), power)
         cum = used + np.cumsum(power) * dt
         if to_depletion and cum[-1] >= e_avail:
             n = int(np.searchsorted(cum, e_avail)) + 1
@@ -286,12 +286,6 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
                      float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps)
 
 
-def _default_speed(ctx) -> float:
-    from orange_plan.physics.range import simplified_range
-
-    return simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr).v_opt_mps
-
-
 def _columns(kin, s_lap, vertex_s, lap, world, state, power, carrying, truth, wind, cum,
              e_avail, n) -> dict:
     x = np.interp(s_lap, vertex_s, lap.xy_m[:, 0])
@@ -304,8 +298,7 @@ def _columns(kin, s_lap, vertex_s, lap, world, state, power, carrying, truth, wi
         "power_W": power, "soc": np.clip(1.0 - cum / e_avail, 0.0, 1.0),
         "payload_kg": np.where(carrying, truth.payload_kg, 0.0),
         "sensor_rate_Hz": state.sensor_rate_Hz,
-        "surface": np.array([names[c] if c >= 0 else world.default_surface_name for c in code],
-                            dtype=object),
+        "surface": np.array([*names, world.default_surface_name], dtype=object)[code],
         "_s": kin["s"],
     }
     if wind.recorded:
