@@ -23,6 +23,9 @@ def atomic_path(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    # mkstemp creates 0600; the finished file should get the user's umask like any other
+    # program's output (0644 under the usual umask 022).
+    os.fchmod(fd, 0o666 & ~_current_umask())
     os.close(fd)
     try:
         yield Path(tmp)
@@ -30,6 +33,12 @@ def atomic_path(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def _current_umask() -> int:
+    mask = os.umask(0o022)  # the only portable way to read it is to set it and restore it
+    os.umask(mask)
+    return mask
 
 
 def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
