@@ -27,6 +27,24 @@ SUMMARY_KEYS = ("energy_available_J", "energy_planned_J", "reserve_J", "coverage
 
 
 @dataclass(frozen=True)
+class StartState:
+    """Where a (re)plan starts: mid-mission position, energy and coverage so far.
+
+    Attributes
+    ----------
+    xy_m : robot position [m]; None: home
+    energy_used_J : battery energy already used [J]
+    time_s : mission time already elapsed [s]
+    covered : area already sensed (shapely geometry) or None
+    """
+
+    xy_m: tuple[float, float] | None = None
+    energy_used_J: float = 0.0
+    time_s: float = 0.0
+    covered: object = None
+
+
+@dataclass(frozen=True)
 class Plan:
     """An exploration tour from a start state back home (SPEC §4).
 
