@@ -255,3 +255,30 @@ def test_start_away_from_home_sparse_summary_and_single_vertex(campus, tmp_path)
                 summary={"energy_available_J": 2.1e5, "return_probability": 1.0})
     png_size(plot_plan(campus.world, stay, tmp_path / "stay.png", "nothing to do"))
     assert sorted(os.listdir(tmp_path)) == ["mid.png", "stay.png"]
+
+
+def test_draw_map_surface_outlines_for_overlay_figures(campus, tmp_path):
+    """A figure with its own field image (like the reach figure) asks for outlines: no fill
+    then hides the image, and the legend shows outlined surfaces."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from orange_plan.atomic import save_figure
+
+    fig, ax = plt.subplots(figsize=(8, 5.5), layout="constrained")
+    handles = draw_map(ax, campus.world, surfaces="outline")
+    labels = [h.get_label() for h in handles]
+    assert not any("(default)" in label for label in labels)  # no default-ground fill
+    assert "asphalt, crr 0.015" in labels
+    filled = [p for p in ax.patches if p.get_zorder() < 2 and p.get_facecolor()[3] > 0]
+    assert filled == []
+    gx, gy = np.meshgrid(np.linspace(0, 800, 80), np.linspace(0, 800, 80))
+    ax.imshow(np.hypot(gx - 60, gy - 400), origin="lower", extent=(0, 800, 0, 800),
+              cmap="viridis", alpha=0.8, zorder=2)
+    fig.legend(handles=handles, loc="outside right upper", fontsize=7)
+    png_size(save_figure(fig, tmp_path / "overlay.png"))
+    with pytest.raises(ValueError, match="outline"):
+        draw_map(plt.figure().add_subplot(), campus.world, surfaces="hatch")
+    plt.close("all")

@@ -10,6 +10,7 @@ layers on top. Layers use these z-orders, leaving room in between for callers:
 1     surface fills (translucent, so the shading shows through)
 1.5   elevation contour lines and their labels
 2-3   free for area overlays (``plot_plan`` puts the covered area at 2.5)
+3.5   surface outlines (``surfaces="outline"``)
 4     obstacles (dark grey) and no-go zones (hatched red)
 4.5   boundary outline
 5     free for paths (``plot_plan`` puts the tour at 5)
@@ -50,7 +51,8 @@ TOUR_CMAP = "plasma"
 # --------------------------------------------------------------------------------------
 # Map
 # --------------------------------------------------------------------------------------
-def draw_map(ax, world, *, home: bool = True, shading: bool = True) -> list:
+def draw_map(ax, world, *, home: bool = True, shading: bool = True,
+             surfaces: str = "fill") -> list:
     """Draw a map on ``ax`` in metres with equal aspect and return its legend handles.
 
     Parameters
@@ -60,6 +62,9 @@ def draw_map(ax, world, *, home: bool = True, shading: bool = True) -> list:
         ``world.geomap.Map`` (then the map's own default surface and home are used)
     home : draw the home point as a star
     shading : draw the elevation raster (hillshade and contour lines) when the map has one
+    surfaces : "fill" (light translucent fills, the default ground included) or "outline"
+        (coloured edges above area overlays, no fills: for figures whose own image, such as
+        a margin field, covers the map)
 
     Returns
     -------
@@ -71,6 +76,9 @@ def draw_map(ax, world, *, home: bool = True, shading: bool = True) -> list:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
+    if surfaces not in ("fill", "outline"):
+        raise ValueError(f"surfaces must be 'fill' or 'outline', not {surfaces!r}")
+    fill = surfaces == "fill"
     m = getattr(world, "map", world)
     if hasattr(world, "map"):
         default_name, default_crr = world.default_surface_name, world.default_crr
@@ -84,7 +92,7 @@ def draw_map(ax, world, *, home: bool = True, shading: bool = True) -> list:
 
     # Default surface: the ground wherever no surface polygon applies. Only shown when the
     # map names one or has surfaces to tell it apart from (a bare map stays white).
-    show_default = m.default_surface is not None or bool(m.surfaces)
+    show_default = fill and (m.default_surface is not None or bool(m.surfaces))
     if show_default:
         ax.add_patch(_patch(m.boundary, facecolor=DEFAULT_SURFACE_COLOUR, edgecolor="none",
                             alpha=0.6 if _has_relief(m) and shading else 1.0, zorder=1))
@@ -102,13 +110,18 @@ def draw_map(ax, world, *, home: bool = True, shading: bool = True) -> list:
     names = m.surface_names
     for s in m.surfaces:
         colour = SURFACE_COLOURS[names.index(s.name) % len(SURFACE_COLOURS)]
-        ax.add_patch(_patch(s.polygon, facecolor=colour, edgecolor="none",
-                            alpha=0.55 if _has_relief(m) and shading else 0.75, zorder=1))
+        if fill:
+            ax.add_patch(_patch(s.polygon, facecolor=colour, edgecolor="none",
+                                alpha=0.55 if _has_relief(m) and shading else 0.75, zorder=1))
+        else:
+            ax.add_patch(_patch(s.polygon, facecolor="none", edgecolor=_darker(colour),
+                                lw=1.2, zorder=3.5))
     for name in names:
         crrs = sorted({s.crr for s in m.surfaces if s.name == name})
         colour = SURFACE_COLOURS[names.index(name) % len(SURFACE_COLOURS)]
-        handles.append(Patch(facecolor=colour, edgecolor="0.6",
-                             label=f"{name}, crr {'/'.join(f'{c:g}' for c in crrs)}"))
+        label = f"{name}, crr {'/'.join(f'{c:g}' for c in crrs)}"
+        handles.append(Patch(facecolor=colour, edgecolor="0.6", label=label) if fill else
+                       Patch(facecolor="none", edgecolor=_darker(colour), lw=1.2, label=label))
 
     for zone in m.obstacles:
         ax.add_patch(_patch(zone, facecolor=OBSTACLE_COLOUR, edgecolor=OBSTACLE_COLOUR,
@@ -138,6 +151,13 @@ def draw_map(ax, world, *, home: bool = True, shading: bool = True) -> list:
     ax.set_xlabel("x [m] (east)")
     ax.set_ylabel("y [m] (north)")
     return handles
+
+
+def _darker(colour, factor: float = 0.6):
+    """The same hue, darker (light fills become readable outlines)."""
+    from matplotlib.colors import to_rgb
+
+    return tuple(factor * c for c in to_rgb(colour))
 
 
 def _has_relief(m) -> bool:
