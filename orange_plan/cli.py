@@ -103,7 +103,8 @@ def _register_commands() -> None:
 
 
 COMMAND_MODULES = [
-    "range_", "reach", "simulate", "convert", "predict", "calibrate", "bench", "bench_identify",
+    "range_", "plan", "reach", "simulate", "convert", "predict", "calibrate", "bench",
+    "bench_identify",
 ]
 """One module per command in orange_plan/commands/, registered in this order."""
 

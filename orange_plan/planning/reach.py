@@ -106,7 +106,8 @@ class Reachability:
         return tuple(float(v) for v in self.roadmap.xy_m[self.start_index])
 
 
-def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None):
+def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
+                  with_gradient: bool | None = None):
     """(fast, exact) edge-cost contexts of a scenario at the cruise speed.
 
     The cruise speed defaults to the simplified ORangE optimum ``v_opt`` (Eq. 6). The fast
@@ -124,14 +125,17 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None):
     step = max(MAX_STEP_M, dem.cell_m if dem is not None else terrain.cell_m)
     common = (ctx.model, ctx.world)
     rest = (float(speed_mps), ctx.duty_cycle, ctx.sensor_rate_Hz)
-    gradient = sc.mission.reserve.kind == "confidence"
+    # Energy gradients (for variances) cost time; only a confidence reserve needs them,
+    # unless the caller asks (the tour planner reports a return probability for any reserve).
+    gradient = sc.mission.reserve.kind == "confidence" if with_gradient is None else with_gradient
     return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient),
             EdgeCostContext(*common, ctx.world, *rest, step_m=None, with_gradient=gradient))
 
 
 def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
                   seed: int = 0, speed_mps: float | None = None,
-                  terrain: TerrainRasters | None = None) -> Reachability:
+                  terrain: TerrainRasters | None = None,
+                  with_gradient: bool | None = None) -> Reachability:
     """Build the roadmap and the two fields for reach queries.
 
     Parameters
@@ -143,6 +147,7 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
     seed : OMPL seed
     speed_mps : cruise speed [m/s]; default v_opt
     terrain : prebuilt rasters (else built here)
+    with_gradient : compute energy gradients; default only for a confidence reserve
 
     Raises
     ------
@@ -160,7 +165,7 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
             raise InputError(f"--from ({start_xy[0]:g}, {start_xy[1]:g}) m is outside the boundary "
                              "or inside an obstacle / no-go zone")
     terrain = build_rasters(ctx.world) if terrain is None else terrain
-    fast, exact = cost_contexts(ctx, terrain, speed_mps)
+    fast, exact = cost_contexts(ctx, terrain, speed_mps, with_gradient)
     roadmap = build_roadmap(fast, n_vertices, seed)
     start = roadmap.home_index
     if start_xy is not None and np.hypot(*(start_xy - ctx.world.home_xy_m)) > 1e-9:

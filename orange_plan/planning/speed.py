@@ -100,6 +100,8 @@ class SpeedProblem:
     objective : "energy" or "time"
     time_limit_s : mission-time limit for "energy" (None: none) [s]
     energy_budget_J : energy limit for "time" [J]
+    piece_v_max_mps : optional per-piece speed cap below v_max (e.g. where a sensor must keep
+        up) [m/s]; clipped to [v_min, v_max]
     """
 
     pieces: PathPieces
@@ -112,6 +114,7 @@ class SpeedProblem:
     objective: str = "energy"
     time_limit_s: float | None = None
     energy_budget_J: float | None = None
+    piece_v_max_mps: np.ndarray | None = None
 
     def __post_init__(self):
         if self.objective not in ("energy", "time"):
@@ -239,11 +242,11 @@ class SpeedSolver:
         x0 = warm_start if warm_start is not None else self._last.get(pc.n)
         if x0 is None:
             x0 = np.full(pc.n, 0.5 * (problem.v_min_mps + problem.v_max_mps))
-        x0 = np.clip(x0, problem.v_min_mps, problem.v_max_mps)
+        x0 = np.clip(x0, problem.v_min_mps, _piece_caps(problem))
         force0 = self.model.traction_force_N(self._state(problem, x0, vars(pc)))
         n = pc.n
         lbx = np.r_[np.full(n, problem.v_min_mps), np.zeros(n)]
-        ubx = np.r_[np.full(n, problem.v_max_mps), np.full(n, np.inf)]
+        ubx = np.r_[_piece_caps(problem), np.full(n, np.inf)]
         t0 = _time.perf_counter()
         r = solver(x0=np.r_[x0, np.maximum(force0, 0.0)], p=p, lbx=lbx, ubx=ubx, ubg=0.0)
         seconds = _time.perf_counter() - t0
@@ -262,6 +265,14 @@ class SpeedSolver:
             energy, duration = exact.total_J, exact.duration_s
         return SpeedProfile(pc.xy_m, speed, energy, duration, int(stats["iter_count"]), seconds,
                             pieces_J)
+
+
+def _piece_caps(problem: SpeedProblem) -> np.ndarray:
+    """Upper speed bound of each piece [m/s]."""
+    cap = np.full(problem.pieces.n, problem.v_max_mps)
+    if problem.piece_v_max_mps is not None:
+        cap = np.minimum(cap, np.asarray(problem.piece_v_max_mps, float))
+    return np.clip(cap, problem.v_min_mps, problem.v_max_mps)
 
 
 def speed_problem(ctx, pieces: PathPieces, objective: str = "energy",

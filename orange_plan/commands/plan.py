@@ -1,0 +1,94 @@
+"""``orange-plan plan``: an exploration tour that maximises coverage and always gets home."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
+from orange_plan.commands.reach import parse_xy, progress
+from orange_plan.errors import InputError
+
+
+@app.command("plan")
+@handles_errors
+def plan_cmd(
+    scenario: ScenarioArg,
+    output: Annotated[Path, typer.Option(
+        "-o", "--output", help="Plan GeoJSON to write (tour, waypoints, covered area, summary).")],
+    png: Annotated[Path | None, typer.Option(
+        "--png", help="Also draw the plan: map, tour coloured by speed, covered area, "
+                      "energy and homing margin against time.")] = None,
+    from_xy: Annotated[str | None, typer.Option(
+        "--from", help="Start position X,Y in metres (default: home).")] = None,
+    energy_used_J: Annotated[float, typer.Option(
+        "--energy-used-J", help="Battery energy already used at the start [J].")] = 0.0,
+    time_s: Annotated[float, typer.Option(
+        "--time-s", help="Mission time already elapsed at the start [s].")] = 0.0,
+    cost: Annotated[str, typer.Option(
+        help="Edge cost: 'physics' (the energy model) or 'distance' (constant energy per "
+             "metre on flat default ground, for comparison).")] = "physics",
+    vertices: Annotated[int, typer.Option(help="Roadmap vertices.")] = 5000,
+    seed: Annotated[int, typer.Option(help="Roadmap random seed.")] = 0,
+    as_json: JsonOpt = False,
+) -> None:
+    """Plan an exploration tour: the most area sensed on one discharge, with the energy to
+    get home (plus the reserve) kept at every vertex."""
+    from orange_plan.context import load_context
+    from orange_plan.planning.plan import StartState
+    from orange_plan.planning.tour import plan_tour
+
+    _check_outputs(output, png)
+    start_xy = parse_xy(from_xy, "--from") if from_xy is not None else None
+    if not (energy_used_J >= 0 and time_s >= 0):
+        raise InputError("--energy-used-J and --time-s must be >= 0")
+    with progress(sys.stderr.isatty() and not as_json) as step:
+        step("loading scenario")
+        ctx = load_context(scenario)
+        start = StartState(start_xy, float(energy_used_J), float(time_s))
+        plan = plan_tour(ctx, start, cost=cost, n_vertices=vertices, seed=seed, progress=step)
+        plan.write(output)
+        if png is not None:
+            from orange_plan.viz.plan_plot import plot_plan
+
+            step("drawing the plan")
+            plot_plan(ctx.world, plan, png, f"{ctx.scenario.name}: exploration plan ({cost})")
+    report = {"scenario": ctx.scenario.name, "plan": str(output), **plan.summary}
+    if as_json:
+        print_json(report)
+        return
+    _print_summary(report, png)
+
+
+def _check_outputs(output: Path, png: Path | None) -> None:
+    """Refuse output names that cannot be written before any work is done."""
+    if output.suffix.lower() not in (".geojson", ".json"):
+        raise InputError(f"-o {output}: the plan file name must end in .geojson or .json")
+    if png is not None and png.suffix.lower() != ".png":
+        raise InputError(f"--png {png}: the file name must end in .png")
+    for path in (output, png):
+        if path is None:
+            continue
+        if path.is_dir():
+            raise InputError(f"{path}: is a directory, not a file name")
+        folder = path.parent if str(path.parent) else Path(".")
+        if folder.exists() and not folder.is_dir():
+            raise InputError(f"{path}: {folder} is not a folder")
+
+
+def _print_summary(s: dict, png) -> None:
+    kj = 1e-3
+    out.print(f"[bold]{s['scenario']}[/]: wrote {s['plan']}")
+    out.print(f"coverage {s['coverage_m2']:,.0f} m^2 ({100 * s['coverage_fraction']:.1f} % of the "
+              f"free area; physical bound {s['coverage_bound_m2']:,.0f} m^2)")
+    out.print(f"energy planned {s['energy_planned_J'] * kj:,.2f} kJ + reserve "
+              f"{s['reserve_J'] * kj:,.2f} kJ of {s['energy_available_J'] * kj:,.2f} kJ available; "
+              f"smallest homing margin {s['min_margin_J'] * kj:,.2f} kJ")
+    out.print(f"duration {s['duration_s'] / 60:,.1f} min, {s['candidates_visited']} coverage "
+              f"candidates, return probability {s['return_probability']:.4f}, planned in "
+              f"{s['planner_seconds']:.1f} s")
+    if png is not None:
+        out.print(f"wrote {png}")

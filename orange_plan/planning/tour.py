@@ -1,0 +1,565 @@
+"""Exploration tours: the most area sensed on one discharge, with the way home always kept.
+
+Problem statement (kept apart from how it is solved): from a start state (position ``s``,
+energy already used ``E_0``, time ``t_0``, area already sensed) find a drivable closed walk
+``s -> ... -> home`` with per-segment speeds that
+
+    maximises   the area sensed: the free workspace within ``sensor_radius_m`` of the walk
+    subject to  at every vertex v of the walk
+                E_0 + E(s -> v) + E_home(v) + reserve(v) <= E_avail        (homing constraint)
+                and the walk ends at home with  t_0 + duration <= time_limit_s
+
+where ``E`` is the battery energy of SPEC §7 at the planned speeds, ``E_home(v)`` the energy
+of the best roadmap return from ``v`` at the cruise speed and ``reserve(v)`` the scenario's
+reserve rule for the energy spent so far plus the return (``confidence = p``: from the model's
+predictive variance of that energy, so the return succeeds with probability >= p).
+
+How it is solved: an energy roadmap (``planning.roadmap``) gives minimum-energy legs between
+coverage candidates (sweep-lane pieces and viewpoints, ``planning.coverage``); an orienteering
+heuristic (``planning.orienteering``: greedy insertion by new area per joule, 2-opt and or-opt)
+chooses and orders them under an energy budget; the CasADi speed optimiser
+(``planning.speed``) then chooses a speed per segment (energy-optimal, capped on sweep lanes so
+the sensor keeps up); and the result is re-evaluated: energies along the walk with
+``path_energy`` at those speeds, the return from every vertex on the roadmap, the reserve from
+the model. If any vertex breaks the homing constraint the budget is lowered by the deficit and
+the tour re-chosen. Why the answer is safe: feasibility is decided on the re-evaluated walk, at
+every vertex, not on the heuristic's estimates; a plan is only returned when every margin is
+>= 0.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from orange_plan.errors import InputError, PlanningError
+from orange_plan.physics.pathcost import path_energy, segments_energy_jacobian, subdivide
+from orange_plan.planning import orienteering
+from orange_plan.planning.coverage import (
+    DEFAULT_MAX_LANE_FRACTION,
+    Candidates,
+    coverage_candidates,
+    coverage_grid,
+    footprint,
+)
+from orange_plan.planning.paths import clean_polyline
+from orange_plan.planning.plan import Plan, StartState
+from orange_plan.planning.reach import (
+    Reachability,
+    home_status,
+    prepare_reach,
+    query_points,
+    reserve_J,
+)
+from orange_plan.planning.roadmap import add_vertices
+
+COST_MODES = ("physics", "distance")
+MAX_CANDIDATES = 400
+"""Candidates kept for the tour search (the best by area per joule of a round trip)."""
+MAX_BUDGET_TRIES = 6
+"""Times the budget is lowered when the re-evaluated walk breaks a homing constraint."""
+TIME_TOLERANCE = 1e-6
+"""Relative overrun of the time limit accepted as the optimiser's round-off [-]."""
+K_HOME = 8
+"""Roadmap vertices each walk vertex is joined to for its return home."""
+
+
+@dataclass(frozen=True)
+class TourSetup:
+    """Everything the tour search reads: roadmap fields, candidates, and their leg matrix."""
+
+    reach: Reachability
+    candidates: Candidates
+    grid: object
+    problem: orienteering.Orienteering
+    points_xy_m: np.ndarray  # (P, 2): 0 = start, 1 = home, then candidate end points
+    predecessors: np.ndarray  # (P, V) Dijkstra predecessors on the extended roadmap
+    point_vertex: np.ndarray  # (P,) roadmap vertex of each point
+    roadmap_xy_m: np.ndarray  # (V, 2)
+
+
+def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
+              n_vertices: int = 5000, seed: int = 0, progress=None,
+              max_candidates: int = MAX_CANDIDATES, optimise_speed: bool = True) -> Plan:
+    """Plan an exploration tour (see the module docstring).
+
+    Parameters
+    ----------
+    ctx : Context (scenario, world, model)
+    start : where the plan starts (default: home, nothing used, nothing covered)
+    cost : "physics" (the scenario's energy model) or "distance" (a constant energy per metre
+        on flat, windless default ground: the usual distance budget, for comparison)
+    n_vertices : roadmap size
+    seed : roadmap seed
+    progress : callable(str) told what is being done, or None
+    max_candidates : coverage candidates kept for the search
+    optimise_speed : choose speeds with the CasADi optimiser (else the cruise speed)
+
+    Raises
+    ------
+    InputError
+        For an impossible request: start not in free space, home unreachable from the start,
+        no coverage candidate that can be visited with the way home kept, a time limit already
+        spent.
+    """
+    t0 = _time.perf_counter()
+    step = progress or (lambda text: None)
+    if cost not in COST_MODES:
+        raise InputError(f"cost = {cost!r} must be one of {COST_MODES}")
+    start = start or StartState()
+    planning_ctx = ctx if cost == "physics" else distance_context(ctx)
+    step("building the energy roadmap")
+    setup = tour_setup(planning_ctx, start, n_vertices, seed, max_candidates, step)
+    reach = setup.reach
+    remaining = reach.energy_available_J - reach.energy_used_J
+    budget = remaining - _reserve_estimate(planning_ctx, setup)
+    time_left = _time_left_s(ctx, start)
+    budget_s = time_left
+    last_error = None
+    for _ in range(MAX_BUDGET_TRIES):
+        if budget <= 0 or budget_s <= 0:
+            break
+        step(f"choosing candidates (budget {budget / 1e3:,.1f} kJ)")
+        problem = replace(setup.problem, budget_J=budget, budget_s=budget_s)
+        tour = orienteering.solve(problem, step)
+        if not tour.nodes:
+            break
+        xy = walk_xy(setup, tour.nodes)
+        step(f"speeds and homing check on {len(xy)} vertices")
+        plan = evaluate_walk(planning_ctx, reach, xy, start, optimise_speed)
+        energy_short = -float(plan.margin_J.min())
+        overrun_s = float(plan.t_s[-1]) - start.time_s - time_left
+        if energy_short <= 0 and overrun_s <= TIME_TOLERANCE * time_left:
+            return _finish(planning_ctx, setup, plan, tour, start, t0)
+        last_error = f"{max(energy_short, 0):.3g} J short, {max(overrun_s, 0):.3g} s over"
+        if energy_short > 0:
+            budget -= 1.05 * energy_short + 1e-3 * remaining
+        if overrun_s > 0:
+            budget_s -= 1.05 * overrun_s + 1e-3 * time_left
+    if last_error is not None:
+        raise PlanningError(f"no tour keeps the homing constraint at every vertex ({last_error})")
+    raise InputError(
+        f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and the "
+        f"reserve kept ({remaining / 1e3:,.3g} kJ left of {reach.energy_available_J / 1e3:,.3g}"
+        " kJ): the battery is too small to leave home, or the time limit is too short")
+
+
+def distance_context(ctx):
+    """The scenario on flat, windless default ground: energy per metre constant everywhere.
+
+    Planning with it is the common practice of a distance budget (range = energy / energy per
+    metre) that ignores grades, surfaces and wind; ``bench plan`` compares it with the
+    physics-based plan when both are flown under the same truth.
+    """
+    world = ctx.world
+    flat_map = replace(world.map, elevation=None, surfaces=())
+    flat_world = replace(world, map=flat_map, wind_xy_mps=(0.0, 0.0))
+    return replace(ctx, world=flat_world)
+
+
+def tour_speed_mps(ctx, start: StartState) -> float:
+    """Cruise speed of the tour search: the one that lets the robot drive farthest [m/s].
+
+    On energy alone that is the simplified range's ``v_opt`` (Eq. 6). Under a time limit
+    a faster speed may drive farther, ``min(E_left / e(v), v D T_left)``, where ``e(v)`` is
+    the energy per metre on flat default ground: the speed maximising that on
+    ``[v_opt, v_max]`` is taken (the speed optimiser later tunes each segment).
+    """
+    from orange_plan.physics.range import flat_state
+
+    v_opt = ctx.cruise_speed_mps
+    limit = ctx.scenario.mission.time_limit_s
+    if limit is None:
+        return v_opt
+    sc = ctx.scenario
+    left = sc.battery.usable_J - start.energy_used_J
+    speeds = np.linspace(v_opt, sc.robot.v_max_mps, 200)
+    state = flat_state(speeds, ctx.world.default_crr, ctx.sensor_rate_Hz)
+    per_m = np.asarray(ctx.model.segment_energy(state, 1.0, ctx.duty_cycle).total_J, float)
+    dist = np.minimum(left / per_m, speeds * ctx.duty_cycle * max(limit - start.time_s, 0.0))
+    return float(speeds[int(np.argmax(dist))])
+
+
+def _time_left_s(ctx, start: StartState) -> float:
+    limit = ctx.scenario.mission.time_limit_s
+    if limit is None:
+        return np.inf
+    left = limit - start.time_s
+    if left <= 0:
+        raise InputError(f"mission.time_limit_s = {limit:g} s is already spent "
+                         f"(time so far {start.time_s:g} s)")
+    return float(left)
+
+
+# --- set-up: roadmap, candidates, legs ------------------------------------------------------
+
+
+def tour_setup(ctx, start: StartState, n_vertices: int, seed: int, max_candidates: int,
+               step) -> TourSetup:
+    """Roadmap and fields, coverage candidates that fit the battery, and their leg matrices."""
+    reach = prepare_reach(ctx, start.xy_m, start.energy_used_J, n_vertices=n_vertices, seed=seed,
+                          speed_mps=tour_speed_mps(ctx, start), with_gradient=True)
+    home = home_status(reach)
+    if not home.reachable:
+        if home.energy_to_home_J is None:
+            raise InputError("home is not reachable from the start (boxed in by obstacles or "
+                             "no-go zones)")
+        raise InputError(f"the start cannot get home with its reserve: "
+                         f"{home.energy_to_home_J:,.0f} J to home + {home.reserve_J:,.0f} J "
+                         f"reserve > {reach.energy_available_J - reach.energy_used_J:,.0f} J left")
+    step("coverage candidates")
+    r = ctx.scenario.mission.sensor_radius_m
+    grid = coverage_grid(ctx.world, r)
+    covered = (np.zeros(len(grid.xy_m), bool) if start.covered is None
+               else _mask(grid, grid.cells_in(start.covered)))
+    cands = select_candidates(ctx, reach, grid, covered, max_candidates, _time_left_s(ctx, start))
+    if cands.n == 0:
+        raise InputError(
+            f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and "
+            "the reserve kept: the battery is too small to leave home")
+    step(f"energy legs between {cands.n} candidates")
+    return _legs(ctx, reach, cands, grid, covered)
+
+
+def _mask(grid, cells) -> np.ndarray:
+    mask = np.zeros(len(grid.xy_m), bool)
+    mask[cells] = True
+    return mask
+
+
+def select_candidates(ctx, reach: Reachability, grid, covered, cap: int,
+                      time_left_s: float = np.inf) -> Candidates:
+    """Sweep-lane pieces whose round trip fits, viewpoints where lanes leave pockets, at most
+    ``cap`` in all (the best by new area per joule of a round trip).
+
+    Lanes tile the free space at the least driving per square metre, so they come first.
+    Lane pieces are made long enough that the distance the robot can drive (``drivable_m``)
+    spans at most half of the lane budget, so the search always has twice the choice it can
+    use, without a flood of tiny pieces on a large battery. Viewpoints are kept only where
+    they add at least a quarter of a footprint beyond the lanes. "Fits" means the candidate's
+    own round trip fits the energy left and, under a time limit, its straight-line round trip
+    at v_max fits the time left (a lower bound on any real round trip's time, so no
+    reachable candidate is dropped).
+    """
+    r = ctx.scenario.mission.sensor_radius_m
+    lane_cap = int(0.75 * cap)
+    max_lane = max(DEFAULT_MAX_LANE_FRACTION * r, 2.0 * drivable_m(ctx, reach, time_left_s)
+                   / lane_cap)
+    cands = coverage_candidates(ctx.world, grid, r, max_lane_m=max_lane)
+    trip = round_trip_J(reach, cands)
+    fits = np.isfinite(trip) & (trip < reach.energy_available_J - reach.energy_used_J)
+    fits &= _within_time(ctx, reach, cands, time_left_s)
+    lane = cands.kind == "lane"
+    value = cands.value_m2(covered, grid)
+    score = value / np.maximum(trip, 1e-9)
+    lanes = np.flatnonzero(lane & fits & (value > 0))
+    lanes = lanes[np.argsort(-score[lanes], kind="stable")[:lane_cap]]
+    with_lanes = covered.copy()
+    for k in lanes:
+        with_lanes[cands.cells[k]] = True
+    residual = cands.value_m2(with_lanes, grid)
+    pockets = np.flatnonzero(~lane & fits & (residual >= 0.25 * np.pi * r**2))
+    pockets = pockets[np.argsort(-score[pockets], kind="stable")[:cap - len(lanes)]]
+    return cands.subset(np.sort(np.r_[lanes, pockets]))
+
+
+def drivable_m(ctx, reach: Reachability, time_left_s: float) -> float:
+    """Farthest the robot could drive: the energy left over the least energy per metre, or
+    v_max for the time left, whichever is shorter [m] (an upper bound for any tour)."""
+    left = reach.energy_available_J - reach.energy_used_J
+    dist = left / min_energy_per_m(ctx)
+    if np.isfinite(time_left_s):
+        dist = min(dist, ctx.scenario.robot.v_max_mps * ctx.duty_cycle * time_left_s)
+    return float(dist)
+
+
+def _within_time(ctx, reach: Reachability, cands: Candidates, time_left_s: float) -> np.ndarray:
+    if not np.isfinite(time_left_s):
+        return np.ones(cands.n, bool)
+    start, home = np.asarray(reach.start_xy_m), np.asarray(reach.home_xy_m)
+    dist = (np.hypot(*(cands.start_xy_m - start).T) + cands.length_m
+            + np.hypot(*(cands.end_xy_m - home).T))
+    fastest = ctx.scenario.robot.v_max_mps * ctx.duty_cycle
+    return dist / fastest <= time_left_s
+
+
+def round_trip_J(reach: Reachability, cands: Candidates) -> np.ndarray:
+    """Energy of start -> candidate -> home on the roadmap fields (raster terrain) [J]."""
+    if cands.n == 0:
+        return np.empty(0)
+    ends = np.concatenate([cands.start_xy_m, cands.end_xy_m])
+    pts = query_points(reach, ends, k=K_HOME)
+    n = cands.n
+    go = np.where(pts.valid, pts.energy_to_goal_J, np.inf)
+    back = np.where(pts.valid, pts.energy_goal_to_home_J, np.inf)
+    return np.minimum(go[:n], go[n:]) + np.minimum(back[:n], back[n:])
+
+
+def _legs(ctx, reach: Reachability, cands: Candidates, grid, covered) -> TourSetup:
+    """Dijkstra from every candidate end point over the roadmap: the leg energy/time matrices."""
+    fast = reach.fast
+    rm = reach.roadmap
+    ends = np.concatenate([cands.start_xy_m, cands.end_xy_m])
+    uniq, inverse = np.unique(np.round(ends, 9), axis=0, return_inverse=True)
+    extended = add_vertices(fast, rm, uniq)
+    n_old = rm.n_vertices
+    point_vertex = np.r_[reach.start_index, rm.home_index, n_old + np.arange(len(uniq))]
+    points_xy = extended.xy_m[point_vertex]
+    graph = extended.graph()
+    dist, pred = dijkstra(graph, directed=True, indices=point_vertex, return_predecessors=True)
+    travel_J = dist[:, point_vertex]
+    travel_s = _leg_times(ctx, fast.speed_mps, extended.xy_m, pred)[:, point_vertex]
+    travel_J = np.where(np.isfinite(travel_J), travel_J, np.inf)
+    n = cands.n
+    entry_pt = 2 + inverse.reshape(-1)
+    entry = np.stack([entry_pt[:n], entry_pt[n:]], axis=1)  # direction 0: start -> end
+    exit_ = entry[:, ::-1].copy()
+    e_fwd, e_rev, _, _ = fast.costs(cands.start_xy_m, cands.end_xy_m)
+    lane = cands.length_m > 0
+    service_J = np.stack([np.where(lane, e_fwd, 0.0), np.where(lane, e_rev, 0.0)], axis=1)
+    moving = fast.speed_mps * ctx.duty_cycle
+    service_s = np.repeat((cands.length_m / moving)[:, None], 2, axis=1)
+    rows = np.repeat(np.arange(n), [len(c) for c in cands.cells])
+    cols = np.concatenate(cands.cells) if n else np.empty(0, int)
+    cells = csr_matrix((np.ones(len(cols)), (rows, cols)), shape=(n, len(grid.xy_m)))
+    problem = orienteering.Orienteering(
+        travel_J, travel_s, entry, exit_, service_J, service_s, cells, grid.cell_area_m2,
+        start=0, end=1, budget_J=0.0, covered=covered)
+    return TourSetup(reach, cands, grid, problem, points_xy, pred, point_vertex, extended.xy_m)
+
+
+def _leg_times(ctx, speed_mps: float, xy: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """Mission time along every Dijkstra tree path (rows: sources) at the cruise speed [s].
+
+    Path lengths are summed up the predecessor trees by pointer jumping (log depth steps),
+    so no path is walked one vertex at a time.
+    """
+    rows = np.arange(pred.shape[0])[:, None]
+    parent = np.where(pred < 0, np.arange(pred.shape[1])[None, :], pred)
+    length = np.hypot(*(xy[None, :, :] - xy[parent]).transpose(2, 0, 1))
+    for _ in range(int(np.ceil(np.log2(max(pred.shape[1], 2)))) + 1):
+        length = length + length[rows, parent]
+        parent = parent[rows, parent]
+    return length / (speed_mps * ctx.duty_cycle)
+
+
+def _reserve_estimate(ctx, setup: TourSetup) -> float:
+    """First guess of the final reserve: that of the costliest candidate's round trip, scaled
+    to the whole remaining energy (the budget loop corrects it against the exact figure)."""
+    reach = setup.reach
+    res = reach.reserve
+    left = reach.energy_available_J - reach.energy_used_J
+    if res.kind != "confidence":
+        return float(reserve_J(res, reach.energy_available_J, 0.0))
+    p = setup.problem
+    trip = p.travel_J[0, p.entry[:, 0]] + p.travel_J[p.exit[:, 0], 1]
+    k = int(np.argmax(np.where(np.isfinite(trip), trip, -1)))
+    xy = walk_xy(setup, [(k, 0)])
+    e = path_energy(reach.exact.model, reach.exact.world, xy, reach.exact.speed_mps,
+                    reach.exact.duty_cycle, reach.exact.sensor_rate_Hz).total_J
+    var = _variance(reach, xy, reach.exact.speed_mps)
+    ratio = float(reserve_J(res, reach.energy_available_J, var[-1])) / max(e, 1e-9)
+    # reserve ~ ratio * E_tour and E_tour + reserve <= left
+    return left * ratio / (1.0 + ratio)
+
+
+# --- the walk: polyline, speeds, re-evaluation ---------------------------------------------
+
+
+def walk_xy(setup: TourSetup, nodes) -> np.ndarray:
+    """The drivable polyline start -> candidates (in order and direction) -> home [m]."""
+    p = setup.problem
+    parts = [setup.points_xy_m[:1]]
+    at = p.start
+    for i, o in nodes:
+        parts.append(_leg(setup, at, int(p.entry[i, o])))
+        parts.append(setup.points_xy_m[[p.exit[i, o]]])
+        at = int(p.exit[i, o])
+    parts.append(_leg(setup, at, p.end))
+    return clean_polyline(np.concatenate(parts))
+
+
+def _leg(setup: TourSetup, a: int, b: int) -> np.ndarray:
+    """Roadmap vertices of the leg from point a to point b (both end points included)."""
+    pred = setup.predecessors[a]
+    target = int(setup.point_vertex[b])
+    source = int(setup.point_vertex[a])
+    seq = [target]
+    while seq[-1] != source:
+        nxt = int(pred[seq[-1]])
+        if nxt < 0:
+            raise PlanningError(f"no roadmap leg between tour points {a} and {b}")
+        seq.append(nxt)
+    return setup.roadmap_xy_m[seq[::-1]]
+
+
+def sensing_speed_mps(ctx) -> float:
+    """Fastest speed at which the sensor still sees every point of a sweep lane [m/s].
+
+    One frame per footprint radius travelled: ``sensor_radius_m * sensor_rate_Hz``; with no
+    sensor rate the cap is the robot's ``v_max_mps``.
+    """
+    sc = ctx.scenario
+    rate = sc.ancillary.sensor_rate_Hz
+    cap = sc.mission.sensor_radius_m * rate if rate > 0 else sc.robot.v_max_mps
+    return float(np.clip(cap, sc.robot.v_min_mps, sc.robot.v_max_mps))
+
+
+def evaluate_walk(ctx, reach: Reachability, xy: np.ndarray, start: StartState,
+                  optimise_speed: bool = True) -> Plan:
+    """Speeds for a walk and its exact per-vertex figures (energies, return, reserve, margin).
+
+    The figures go into a Plan whose summary is completed by ``_finish``.
+    """
+    speeds = _speeds(ctx, xy, start) if optimise_speed else None
+    if speeds is None:
+        speeds = np.full(len(xy) - 1, reach.exact.speed_mps)
+    ex = reach.exact
+    energy = path_energy(ex.model, ex.world, xy, speeds, ex.duty_cycle, ex.sensor_rate_Hz)
+    used = reach.energy_used_J + energy.cumulative_J
+    home_J, home_grad = home_legs(reach, xy)
+    home_J[-1], home_grad[-1] = 0.0, 0.0
+    var = _variance(reach, xy, speeds, home_grad)
+    res = reserve_J(reach.reserve, reach.energy_available_J, var)
+    margin = reach.energy_available_J - used - home_J - res
+    t = start.time_s + energy.cumulative_time_s
+    return Plan(xy, t, np.r_[speeds, speeds[-1]], used, home_J, res, margin,
+                np.empty((0, 2)), None, {})
+
+
+def _speeds(ctx, xy: np.ndarray, start: StartState):
+    """Per-segment speeds from the CasADi optimiser, None when it cannot help."""
+    from orange_plan.planning.speed import SpeedSolver, cut_path, speed_problem
+
+    n_seg = len(xy) - 1
+    pieces = cut_path(ctx.world, xy, n_seg)
+    limit = ctx.scenario.mission.time_limit_s
+    limit = None if limit is None else limit - start.time_s
+    try:
+        problem = speed_problem(ctx, pieces, time_limit_s=limit)
+        problem = replace(problem, piece_v_max_mps=_lane_caps(ctx, xy))
+        profile = SpeedSolver(ctx.model).solve(problem)
+    except (InputError, PlanningError):
+        return None
+    return np.asarray(profile.speed_mps, float)
+
+
+def _lane_caps(ctx, xy: np.ndarray) -> np.ndarray:
+    """Per-segment speed cap: the sensing speed everywhere (the whole walk senses) [m/s]."""
+    return np.full(len(xy) - 1, sensing_speed_mps(ctx))
+
+
+def home_legs(reach: Reachability, xy: np.ndarray):
+    """Energy [J] and d energy / d theta of the best roadmap return home from each point.
+
+    Each point is joined to its ``K_HOME`` nearest roadmap vertices by straight segments that
+    are collision-checked exactly; the return is the cheapest such segment plus that vertex's
+    energy-to-home field value (raster terrain, as the roadmap weights).
+    """
+    rm, fast = reach.roadmap, reach.fast
+    pts = np.asarray(xy, float)
+    n, k = len(pts), min(K_HOME, rm.n_vertices)
+    _, near = cKDTree(rm.xy_m).query(pts, k=k)
+    near = near.reshape(n, k)
+    a = np.repeat(pts, k, axis=0)
+    b = rm.xy_m[near.ravel()]
+    same = np.hypot(*(a - b).T) < 1e-9
+    ok = (same | reach.exact.world.segments_free(a, b)).reshape(n, k)
+    _, c_out, _, j_out = fast.costs(b, a)
+    e = np.where(ok, c_out.reshape(n, k) + reach.to_home.energy_J[near], np.inf)
+    best = np.argmin(e, axis=1)
+    rows = np.arange(n)
+    energy = e[rows, best]
+    if not np.all(np.isfinite(energy)):
+        bad = int(np.flatnonzero(~np.isfinite(energy))[0])
+        raise PlanningError(f"walk vertex {bad} at {tuple(np.round(pts[bad], 2))} m has no "
+                            "roadmap return home")
+    grad = np.zeros((n, reach.to_home.gradient.shape[1]))
+    if grad.shape[1]:
+        kk = j_out.shape[1]
+        grad = j_out.reshape(n, k, kk)[rows, best] + reach.to_home.gradient[near[rows, best]]
+    return energy, grad
+
+
+def _variance(reach: Reachability, xy, speeds, home_grad=None, always: bool = False):
+    """Predictive variance of (energy so far + return) at each vertex [J^2] (zeros unless the
+    reserve is a confidence or ``always``)."""
+    n = len(xy)
+    if reach.reserve.kind != "confidence" and not always:
+        return np.zeros(n)
+    ex = reach.exact
+    steps = subdivide(ex.world, xy[:-1], xy[1:])
+    jac = segments_energy_jacobian(ex.model, ex.world, steps, speeds, ex.duty_cycle,
+                                   ex.sensor_rate_Hz)
+    prefix = np.vstack([np.zeros((1, jac.shape[1])), np.cumsum(jac, axis=0)])
+    total = prefix if home_grad is None else prefix + home_grad
+    return np.asarray(ex.model.energy_variance_J2(total), float).reshape(n)
+
+
+# --- summary -------------------------------------------------------------------------------
+
+
+def _finish(ctx, setup: TourSetup, plan: Plan, tour, start: StartState, t0: float) -> Plan:
+    """Covered area, waypoints and the SPEC §4 summary."""
+    reach = setup.reach
+    world = ctx.world
+    r = ctx.scenario.mission.sensor_radius_m
+    covered = footprint(world, plan.xy_m, r)
+    if start.covered is not None:
+        covered = covered.union(start.covered)
+    free_area = setup.grid.free_area_m2
+    final_reserve = float(plan.reserve_J[-1])
+    motion = max(reach.energy_available_J - reach.energy_used_J - final_reserve, 0.0)
+    reach_m = motion / min_energy_per_m(ctx)
+    if ctx.scenario.mission.time_limit_s is not None:  # and never faster than v_max
+        reach_m = min(reach_m, drivable_m(ctx, reach, _time_left_s(ctx, start)))
+    bound = min(free_area, 2 * r * reach_m + np.pi * r**2)
+    waypoints = setup.candidates.anchor_xy_m[[i for i, _ in tour.nodes]]
+    summary = {
+        "energy_available_J": reach.energy_available_J,
+        "energy_planned_J": float(plan.energy_used_J[-1] - reach.energy_used_J),
+        "reserve_J": final_reserve,
+        "coverage_m2": float(covered.area),
+        "coverage_fraction": float(covered.area / free_area) if free_area > 0 else 0.0,
+        "coverage_bound_m2": float(bound),
+        "duration_s": float(plan.t_s[-1] - start.time_s),
+        "return_probability": return_probability(reach, plan),
+        "planner_seconds": _time.perf_counter() - t0,
+        "energy_used_start_J": reach.energy_used_J,
+        "candidates_visited": len(tour.nodes),
+        "min_margin_J": float(plan.margin_J.min()),
+        "reserve_rule": f"{reach.reserve.kind} = {reach.reserve.value:g}",
+    }
+    return replace(plan, waypoints_xy_m=waypoints, covered=covered, summary=summary)
+
+
+def min_energy_per_m(ctx) -> float:
+    """Least battery energy per metre anywhere on the map: flat ground of the lowest rolling
+    coefficient at the best speed (Eq. 6's denominator) [J/m] (coverage bound, SPEC §4)."""
+    from orange_plan.physics.range import simplified_range
+
+    crr = min([ctx.world.default_crr, *(s.crr for s in ctx.world.map.surfaces)])
+    return simplified_range(ctx.scenario, ctx.model, crr).energy_per_m_J
+
+
+def return_probability(reach: Reachability, plan: Plan) -> float:
+    """Probability of getting home from the worst vertex of the plan [-].
+
+    The energy needed from a vertex (used so far + return) is taken as normal around its
+    planned value with the model's predictive variance, whatever the reserve rule.
+    """
+    from scipy.stats import norm
+
+    _, grad = home_legs(reach, plan.xy_m)
+    grad[-1] = 0.0
+    var = _variance(reach, plan.xy_m, plan.speed_mps[:-1], grad, always=True)
+    slack = reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J
+    sd = np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(sd > 0, slack / sd, np.where(slack >= 0, np.inf, -np.inf))
+    return float(norm.cdf(z.min()))
