@@ -93,3 +93,85 @@ def bench_table(r) -> Table:
                   f"{s['warm_s'] * 1e3:.1f} ms ({s['cold_s'] * 1e3:.0f} ms)", target, ratio_txt)
     t.add_row(f"dense-grid reference build ({r.grid_cell_m:g} m)", f"{r.grid_s:.1f} s", "", "")
     return t
+
+
+DEFAULT_PLAN_SCENARIOS = "kiwibot_campus,ar_drone_wind,marine_survey,husky_a200,random"
+
+
+@bench_app.command("plan")
+@handles_errors
+def bench_plan_cmd(
+    scenarios: Annotated[str, typer.Option(
+        help="Comma-separated shipped scenario names or .toml paths; 'random' = the generated "
+             "family.")] = DEFAULT_PLAN_SCENARIOS,
+    seeds: Annotated[int | None, typer.Option(
+        help="Truths (simulated flights) per scenario and method (default 20; 2 with --quick).")] = None,
+    quick: Annotated[bool, typer.Option(
+        help="Small run for tests: the random family of one small map, 2 seeds, no 2 km map.")] = False,
+    vertices: Annotated[int, typer.Option(help="Roadmap vertices of the planners.")] = 5000,
+    family_size: Annotated[int, typer.Option(help="Maps in the random family.")] = 4,
+    large: Annotated[bool, typer.Option(
+        help="Time (c) on the generated 2 km x 2 km map (300 obstacles, DEM).")] = True,
+    png: Annotated[Path | None, typer.Option(help="PNG: coverage vs strandings per method.")] = None,
+    out_file: Annotated[Path | None, typer.Option(
+        "--out", help="Write the JSON result here after each scenario (partial) and at the end.")] = None,
+    planner: Annotated[str, typer.Option(
+        help="Tour planner MODULE:FUNCTION for (b) and (c).")] = "orange_plan.planning.tour:plan_tour",
+    as_json: JsonOpt = False,
+) -> None:
+    """Coverage with a guaranteed return: (a) lawnmower + PX4 return rule, (b) the planner
+    with a distance budget, (c) the planner; flown under truths within the calibration
+    uncertainty (issue #8)."""
+    import functools
+    import json
+    import tempfile
+
+    from orange_plan.atomic import atomic_path
+    from orange_plan.bench.plan import plan_figure, plan_table, run_plan_bench, scenario_specs
+
+    seeds = seeds if seeds is not None else (2 if quick else 20)
+    if png is not None and png.suffix.lower() != ".png":
+        raise InputError(f"--png {png}: the file name must end in .png")
+    if family_size < 1:
+        raise InputError(f"--family-size = {family_size} must be >= 1")
+    names = [s.strip() for s in scenarios.split(",") if s.strip()]
+    if quick and scenarios == DEFAULT_PLAN_SCENARIOS:
+        names = ["random"]
+    plan_fn = functools.partial(load_planner(planner), n_vertices=800 if quick else vertices,
+                                seed=0)
+
+    def save(result) -> None:
+        if out_file is not None:
+            with atomic_path(out_file, suffix=".json") as tmp:
+                tmp.write_text(json.dumps(result.to_dict(), indent=1), encoding="utf-8")
+
+    with tempfile.TemporaryDirectory(prefix="orange-bench-plan-") as folder, \
+            progress(sys.stderr.isatty() and not as_json) as step:
+        specs = scenario_specs(names, Path(folder), 1 if quick else family_size,
+                               {"width_m": 80.0, "height_m": 60.0} if quick else None)
+        result = run_plan_bench(specs, plan_fn, seeds, n_vertices=800 if quick else 3000,
+                                large_folder=None if quick or not large else Path(folder) / "large",
+                                step=step, on_progress=save)
+    save(result)
+    if png is not None:
+        plan_figure(result, png)
+    if as_json:
+        print_json(result.to_dict())
+        return
+    out.print(plan_table(result))
+    if png is not None:
+        out.print(f"wrote {png}")
+
+
+def load_planner(spec: str):
+    """``MODULE:FUNCTION`` -> the function (InputError naming the spec if it is missing)."""
+    import importlib
+
+    module, _, name = spec.partition(":")
+    try:
+        fn = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise InputError(f"--planner {spec}: not available ({exc})") from None
+    if not callable(fn):
+        raise InputError(f"--planner {spec}: not a function")
+    return fn

@@ -1,0 +1,516 @@
+"""Benchmark of coverage planning with a guaranteed return (``orange-plan bench plan``).
+
+Three methods, side by side on the same scenarios and the same truths:
+
+(a) ``lawnmower``: a boustrophedon path at its best sweep angle (``planning.lawnmower``),
+    turned home in flight by PX4's remaining-flight-time rule (``bench.px4_rtl``);
+(b) ``distance``: the tour planner with a constant energy per metre (a distance budget, the
+    usual practice): ``planner(ctx, cost="distance")``;
+(c) ``physics``: the tour planner with the energy model: ``planner(ctx, cost="physics")``.
+
+Each plan is flown by the simulator (``sim.simulator.simulate``, what ``orange-plan simulate``
+runs; plans go through their SPEC §4 GeoJSON and ``load_route``) under ``seeds`` truths drawn
+within the model's calibration uncertainty (``sim.perturb.calibration_truths``); the same
+truths and seeds for the three methods. Per flight:
+
+* coverage: area of ``planning.coverage.footprint(world, flown positions, r)`` (sensor radius
+  r, free space only), positions up to the battery's exhaustion;
+* stranded: the battery's usable energy ran out before the route ended, or the route did not
+  end at home;
+* energy left at home: the truth's usable energy minus the energy drawn (negative: stranded);
+* coverage / bound: coverage over SPEC §4 ``coverage_bound_m2`` (from the planner's summary;
+  ``coverage_bound_m2`` here when the planner gives none).
+
+Reported per scenario and method: medians over the flights, strandings as a count, planner
+seconds (wall clock, median over a family's maps). The random family ("random") is
+``family_size`` generated maps (``bench.maps``) with the seeds dealt round-robin over them.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from orange_plan.errors import InputError, OrangeError
+
+METHODS = ("lawnmower", "distance", "physics")
+"""Method ids: (a), (b), (c)."""
+
+METHOD_LABELS = {"lawnmower": "(a) lawnmower + PX4 return",
+                 "distance": "(b) planner, distance budget",
+                 "physics": "(c) planner, energy model"}
+
+DEFAULT_SCENARIOS = ("kiwibot_campus", "ar_drone_wind", "marine_survey", "husky_a200", "random")
+"""Shipped scenarios (scenarios/NAME.toml) and the random family, in table order."""
+
+TAGS = {"kiwibot_campus": "hilly", "ar_drone_wind": "windy", "marine_survey": "current",
+        "husky_a200": "open", "random": "random family"}
+
+TARGETS = {"coverage_of_bound_open": 0.80, "ratio_vs_lawnmower": 1.3, "strandings_physics": 0,
+           "planner_s_kiwibot": 20.0, "planner_s_large": 90.0}
+
+HOME_TOLERANCE_M = 1.0
+"""A flight whose last position is farther than this from home did not get home [m]."""
+
+Planner = Callable[..., object]
+"""``planner(ctx, cost="physics" | "distance") -> Plan`` (``planning.plan.Plan``)."""
+
+
+# --- results ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One simulated flight of one plan under one truth.
+
+    Attributes
+    ----------
+    seed : truth / simulator seed
+    coverage_m2 : area sensed [m^2]
+    coverage_of_bound : coverage / the scenario's coverage_bound_m2 [-]
+    energy_left_J : usable energy minus energy drawn at the end [J] (< 0: stranded)
+    stranded : battery exhausted before the route ended, or not back home
+    duration_s : mission time flown [s]
+    turned_home_s : (a) only: mission time at which the return rule fired [s]
+    """
+
+    seed: int
+    coverage_m2: float
+    coverage_of_bound: float
+    energy_left_J: float
+    stranded: bool
+    duration_s: float
+    turned_home_s: float | None = None
+
+
+@dataclass(frozen=True)
+class MethodResult:
+    """All flights of one method on one scenario (a family: all its maps).
+
+    Attributes
+    ----------
+    scenario, method : names
+    planner_seconds : wall-clock planning time, median over the scenario's maps [s]
+    coverage_bound_m2 : SPEC §4 bound, median over the maps [m^2]
+    planned_coverage_m2 : the plan's own coverage figure, median over the maps [m^2]
+    flights : one per truth
+    error : why the method produced no plan (then no flights)
+    """
+
+    scenario: str
+    method: str
+    planner_seconds: float
+    coverage_bound_m2: float
+    planned_coverage_m2: float | None
+    flights: tuple[Flight, ...] = ()
+    error: str | None = None
+
+    def _median(self, key: str) -> float | None:
+        values = [getattr(f, key) for f in self.flights]
+        return float(statistics.median(values)) if values else None
+
+    @property
+    def coverage_m2(self) -> float | None:
+        return self._median("coverage_m2")
+
+    @property
+    def coverage_of_bound(self) -> float | None:
+        return self._median("coverage_of_bound")
+
+    @property
+    def energy_left_J(self) -> float | None:
+        return self._median("energy_left_J")
+
+    @property
+    def strandings(self) -> int:
+        return sum(f.stranded for f in self.flights)
+
+    def summary(self) -> dict:
+        """Medians and counts (one table row)."""
+        return {"scenario": self.scenario, "method": self.method,
+                "coverage_m2": self.coverage_m2, "coverage_of_bound": self.coverage_of_bound,
+                "energy_left_J": self.energy_left_J, "planner_seconds": self.planner_seconds,
+                "strandings": self.strandings, "flights": len(self.flights),
+                "coverage_bound_m2": self.coverage_bound_m2,
+                "planned_coverage_m2": self.planned_coverage_m2, "error": self.error}
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Planning time of one method on one scenario (no flights) [s]."""
+
+    scenario: str
+    method: str
+    planner_seconds: float | None
+    target_s: float | None
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class PlanBenchResult:
+    """The whole benchmark (``to_dict`` is the ``--json`` output)."""
+
+    seeds: int
+    results: list[MethodResult]
+    timings: list[Timing] = field(default_factory=list)
+    complete: bool = True
+
+    def result(self, scenario: str, method: str) -> MethodResult | None:
+        return next((r for r in self.results if r.scenario == scenario and r.method == method),
+                    None)
+
+    def ratio_vs_lawnmower(self, scenario: str, method: str = "physics") -> float | None:
+        """Median coverage of ``method`` / median coverage of (a) on a scenario [-]."""
+        a, c = self.result(scenario, "lawnmower"), self.result(scenario, method)
+        if a is None or c is None or not a.coverage_m2 or c.coverage_m2 is None:
+            return None
+        return c.coverage_m2 / a.coverage_m2
+
+    def rows(self) -> list[dict]:
+        """One row per scenario and method: the table's columns."""
+        rows = []
+        for r in self.results:
+            row = r.summary()
+            row["ratio_vs_lawnmower"] = (None if r.method == "lawnmower"
+                                         else self.ratio_vs_lawnmower(r.scenario, r.method))
+            rows.append(row)
+        return rows
+
+    def to_dict(self) -> dict:
+        return {"seeds": self.seeds, "complete": self.complete, "targets": TARGETS,
+                "rows": self.rows(),
+                "flights": [{"scenario": r.scenario, "method": r.method,
+                             "flights": [asdict(f) for f in r.flights]} for r in self.results],
+                "timings": [asdict(t) for t in self.timings]}
+
+
+# --- scenarios ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """A benchmark scenario: one scenario file, or a family of generated ones."""
+
+    name: str
+    paths: tuple[Path, ...]
+
+
+def repo_scenario(name: str) -> Path:
+    """``scenarios/NAME.toml`` of the repository (or ``name`` itself if it is a file)."""
+    import orange_plan
+
+    if Path(name).suffix == ".toml" and Path(name).is_file():
+        return Path(name)
+    path = Path(orange_plan.__file__).resolve().parents[1] / "scenarios" / f"{name}.toml"
+    if not path.is_file():
+        raise InputError(f"--scenarios: no scenario '{name}' (scenarios/{name}.toml) and no such "
+                         "file; use a shipped name, a .toml path or 'random'")
+    return path
+
+
+def scenario_specs(names: Sequence[str], folder: Path, family_size: int = 4,
+                   family_kwargs: dict | None = None) -> list[ScenarioSpec]:
+    """Resolve ``--scenarios`` names; ``random`` writes the family's maps into ``folder``."""
+    from orange_plan.bench.maps import random_scenario
+
+    specs = []
+    for name in names:
+        if name == "random":
+            paths = tuple(random_scenario(folder, k, **(family_kwargs or {}))
+                          for k in range(family_size))
+            specs.append(ScenarioSpec("random", paths))
+        else:
+            path = repo_scenario(name)
+            specs.append(ScenarioSpec(path.stem, (path,)))
+    return specs
+
+
+# --- one map -----------------------------------------------------------------------------
+
+
+def coverage_bound_m2(ctx) -> float:
+    """SPEC §4 bound when a planner gives none: ``min(free area, 2 r E / e + pi r^2)`` with E
+    the usable energy and e the simplified range's energy per metre (flat default ground)."""
+    from orange_plan.physics.range import simplified_range
+
+    r = ctx.scenario.mission.sensor_radius_m
+    e = simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr).energy_per_m_J
+    free = ctx.world.map.free_space.area
+    return float(min(free, 2 * r * ctx.scenario.battery.usable_J / e + math.pi * r * r))
+
+
+def flown_footprint(world, xy, radius_m: float):
+    """``coverage.footprint`` of recorded positions, the polyline first simplified by 2 % of r
+    (10 Hz samples are centimetres apart; the buffer's area changes by well under 1 %)."""
+    import shapely
+
+    from orange_plan.planning.coverage import footprint
+
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    if len(xy) > 2:
+        xy = shapely.get_coordinates(shapely.LineString(xy).simplify(0.02 * radius_m))
+    return footprint(world, xy, radius_m)
+
+
+def flight_of(ctx, sim, seed: int, bound_m2: float, turned_home_s=None) -> Flight:
+    """Coverage, energy left and stranding of a simulated run (module docstring)."""
+    frame = sim.frame
+    soc = frame["soc"].to_numpy(float)
+    empty = np.flatnonzero(soc <= 0.0)
+    end = int(empty[0]) + 1 if empty.size else len(frame)
+    xy = frame[["x_m", "y_m"]].to_numpy(float)[:end]
+    last = xy[-1]
+    away = float(np.hypot(*(last - np.asarray(ctx.world.home_xy_m))))
+    stranded = bool(empty.size) or sim.energy_J >= sim.energy_available_J or \
+        away > HOME_TOLERANCE_M
+    area = flown_footprint(ctx.world, xy, ctx.scenario.mission.sensor_radius_m).area
+    return Flight(int(seed), float(area), float(area / bound_m2) if bound_m2 > 0 else math.nan,
+                  float(sim.energy_available_J - sim.energy_J), stranded, float(sim.duration_s),
+                  turned_home_s)
+
+
+def _route_via_geojson(plan, folder: Path, name: str):
+    """The plan as ``orange-plan simulate`` reads it: its SPEC §4 file through ``load_route``."""
+    from orange_plan.sim.route import load_route
+
+    path = folder / f"{name}.geojson"
+    plan.write(path)
+    return load_route(path)
+
+
+@dataclass
+class _MapRun:
+    """Plans, bound and flights of the three methods on one map (mutable while it runs)."""
+
+    seconds: dict = field(default_factory=dict)
+    planned: dict = field(default_factory=dict)
+    errors: dict = field(default_factory=dict)
+    flights: dict = field(default_factory=lambda: {m: [] for m in METHODS})
+    bound_m2: float = math.nan
+
+
+def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
+            methods=METHODS, n_vertices: int = 3000, sample_rate_Hz: float = 10.0,
+            step: Callable[[str], None] = lambda s: None) -> _MapRun:
+    """Plan with each method on one map and fly each plan under ``len(seeds)`` truths."""
+    from orange_plan.bench.px4_rtl import HomePaths, fly_with_return_rule
+    from orange_plan.planning.lawnmower import plan_lawnmower
+    from orange_plan.planning.reach import prepare_reach
+    from orange_plan.sim.perturb import calibration_truths
+    from orange_plan.sim.simulator import simulate
+
+    run = _MapRun()
+    name = ctx.scenario.name
+    plans = {}
+    for method in methods:
+        step(f"{name}: planning ({METHOD_LABELS[method]})")
+        t0 = time.perf_counter()
+        try:
+            if method == "lawnmower":
+                reach = prepare_reach(ctx, n_vertices=n_vertices)
+                plans[method] = (plan_lawnmower(ctx, reach), HomePaths(reach), reach)
+            else:
+                if planner is None:
+                    raise InputError("no tour planner available")
+                plans[method] = planner(ctx, cost=method)
+        except Exception as exc:  # noqa: BLE001 - a failing method is reported, not fatal
+            run.errors[method] = f"{type(exc).__name__}: {exc}"
+            continue
+        run.seconds[method] = time.perf_counter() - t0
+    for method in ("physics", "distance"):
+        plan = plans.get(method)
+        if plan is not None:
+            run.planned[method] = (plan.summary or {}).get("coverage_m2")
+            if math.isnan(run.bound_m2) and (plan.summary or {}).get("coverage_bound_m2"):
+                run.bound_m2 = float(plan.summary["coverage_bound_m2"])
+    if math.isnan(run.bound_m2):
+        run.bound_m2 = coverage_bound_m2(ctx)
+    truths = calibration_truths(ctx, len(seeds), seed=truth_seed)
+    with tempfile.TemporaryDirectory(prefix="orange-bench-") as tmp:
+        routes = {m: _route_via_geojson(plans[m], Path(tmp), m) for m in ("distance", "physics")
+                  if m in plans}
+        for seed, truth in zip(seeds, truths):
+            step(f"{name}: flights, seed {seed}")
+            for method in [m for m in methods if m in plans and m not in run.errors]:
+                try:
+                    if method == "lawnmower":
+                        lawn, home, reach = plans["lawnmower"]
+                        sim, decision, _ = fly_with_return_rule(
+                            ctx, lawn.xy_m, home, truth, seed, cost=reach.fast,
+                            sample_rate_Hz=sample_rate_Hz)
+                        turned = decision.t_s if decision.fired else None
+                    else:
+                        sim = simulate(ctx, routes[method], truth, seed=seed,
+                                       sample_rate_Hz=sample_rate_Hz)
+                        turned = None
+                except OrangeError as exc:  # e.g. a plan that leaves the free space
+                    run.errors[method] = f"flight: {exc}"
+                    run.flights[method].clear()
+                    continue
+                run.flights[method].append(flight_of(ctx, sim, seed, run.bound_m2, turned))
+    return run
+
+
+# --- the benchmark -----------------------------------------------------------------------
+
+
+def _merge(spec: ScenarioSpec, runs: list[_MapRun], methods) -> list[MethodResult]:
+    out = []
+    for method in methods:
+        secs = [r.seconds[method] for r in runs if method in r.seconds]
+        planned = [r.planned[method] for r in runs if r.planned.get(method) is not None]
+        errors = [r.errors[method] for r in runs if method in r.errors]
+        flights = tuple(f for r in runs for f in r.flights[method])
+        out.append(MethodResult(
+            spec.name, method, float(statistics.median(secs)) if secs else math.nan,
+            float(statistics.median(r.bound_m2 for r in runs)),
+            float(statistics.median(planned)) if planned else None, flights,
+            errors[0] if errors else None))
+    return out
+
+
+def run_plan_bench(specs: Sequence[ScenarioSpec], planner: Planner | None, seeds: int = 20,
+                   methods=METHODS, n_vertices: int = 3000, sample_rate_Hz: float = 10.0,
+                   large_folder: Path | None = None,
+                   step: Callable[[str], None] = lambda s: None,
+                   on_progress: Callable[[PlanBenchResult], None] | None = None
+                   ) -> PlanBenchResult:
+    """Run the benchmark over ``specs`` (module docstring).
+
+    Parameters
+    ----------
+    specs : scenarios (``scenario_specs``)
+    planner : ``planner(ctx, cost=...) -> Plan`` for (b) and (c); None: (a) only
+    seeds : truths per scenario (a family deals them round-robin over its maps)
+    methods : subset of ``METHODS``
+    n_vertices : roadmap size of the lawnmower's detours and return paths
+    sample_rate_Hz : simulator rate [Hz]
+    large_folder : where to write the 2 km x 2 km map and time the planner on it (None: skip)
+    on_progress : called with the partial result after each scenario
+
+    Raises
+    ------
+    InputError
+        If ``seeds`` < 1 or a method is unknown.
+    """
+    from orange_plan.context import load_context
+
+    if seeds < 1:
+        raise InputError(f"--seeds = {seeds} must be >= 1")
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputError(f"unknown method '{unknown[0]}' (have {', '.join(METHODS)})")
+    results: list[MethodResult] = []
+    timings: list[Timing] = []
+    for spec in specs:
+        runs = []
+        for k, path in enumerate(spec.paths):
+            mine = list(range(seeds))[k:: len(spec.paths)]
+            if not mine:
+                continue
+            ctx = load_context(path)
+            runs.append(run_map(ctx, planner, mine, truth_seed=1000 * k + 17, methods=methods,
+                                n_vertices=n_vertices, sample_rate_Hz=sample_rate_Hz, step=step))
+        results += _merge(spec, runs, methods)
+        if spec.name == "kiwibot_campus" and "physics" in methods:
+            r = results[-len(methods) + list(methods).index("physics")]
+            timings.append(Timing(spec.name, "physics", r.planner_seconds,
+                                  TARGETS["planner_s_kiwibot"], r.error))
+        if on_progress is not None:
+            on_progress(PlanBenchResult(seeds, list(results), list(timings), complete=False))
+    if large_folder is not None and planner is not None:
+        timings.append(time_large_map(planner, large_folder, step))
+    return PlanBenchResult(seeds, results, timings, complete=True)
+
+
+def time_large_map(planner: Planner, folder: Path, step=lambda s: None) -> Timing:
+    """Planning time of (c) on the generated 2 km x 2 km map with 300 obstacles and a DEM."""
+    from orange_plan.bench.maps import large_scenario
+    from orange_plan.context import load_context
+
+    ctx = load_context(large_scenario(folder))
+    step("large map (2 km x 2 km, 300 obstacles, DEM): planning (c)")
+    t0 = time.perf_counter()
+    try:
+        planner(ctx, cost="physics")
+    except OrangeError as exc:
+        return Timing(ctx.scenario.name, "physics", None, TARGETS["planner_s_large"], str(exc))
+    return Timing(ctx.scenario.name, "physics", time.perf_counter() - t0,
+                  TARGETS["planner_s_large"])
+
+
+# --- presentation ------------------------------------------------------------------------
+
+
+def _fmt(value, spec: str, scale: float = 1.0) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value / scale, spec)
+
+
+def plan_table(result: PlanBenchResult):
+    """The README table: one row per scenario and method (medians over the flights)."""
+    from rich.table import Table
+
+    title = (f"bench plan: medians over {result.seeds} truths per scenario"
+             + ("" if result.complete else " (PARTIAL)"))
+    t = Table(title=title, header_style="bold")
+    for col in ("scenario", "method", "coverage m2", "cov / bound", "energy left kJ",
+                "planner s", "strandings", "(c)/(a), (b)/(a)"):
+        t.add_column(col, justify="left" if col in ("scenario", "method") else "right")
+    for row in result.rows():
+        tag = TAGS.get(row["scenario"])
+        name = f"{row['scenario']} ({tag})" if tag else row["scenario"]
+        if row["error"] and not row["flights"]:
+            t.add_row(name, METHOD_LABELS[row["method"]], f"[red]{row['error'][:60]}[/]",
+                      "", "", _fmt(row["planner_seconds"], ".1f"), "", "")
+            continue
+        t.add_row(name, METHOD_LABELS[row["method"]], _fmt(row["coverage_m2"], ",.0f"),
+                  _fmt(row["coverage_of_bound"], ".1%"), _fmt(row["energy_left_J"], ",.1f", 1e3),
+                  _fmt(row["planner_seconds"], ".1f"),
+                  f"{row['strandings']}/{row['flights']}",
+                  _fmt(row["ratio_vs_lawnmower"], ".2f"))
+    for tm in result.timings:
+        t.add_row(tm.scenario, f"planning time {METHOD_LABELS[tm.method]}", "", "", "",
+                  _fmt(tm.planner_seconds, ".1f") if tm.error is None else "[red]failed[/]",
+                  f"target <= {tm.target_s:g} s" if tm.target_s else "", "")
+    return t
+
+
+def plan_figure(result: PlanBenchResult, path) -> Path:
+    """PNG: median coverage / bound against strandings, one marker per scenario and method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from orange_plan.atomic import save_figure
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    markers = {"lawnmower": "s", "distance": "^", "physics": "o"}
+    scen = list(dict.fromkeys(r.scenario for r in result.results))
+    colours = plt.get_cmap("tab10")
+    for r in result.results:
+        if r.coverage_of_bound is None:
+            continue
+        share = r.strandings / max(len(r.flights), 1)
+        ax.scatter(r.coverage_of_bound * 100, share * 100, marker=markers[r.method], s=60,
+                   color=colours(scen.index(r.scenario) % 10), edgecolor="k", linewidth=0.5)
+    for m, mk in markers.items():
+        ax.scatter([], [], marker=mk, color="grey", label=METHOD_LABELS[m])
+    for i, s in enumerate(scen):
+        ax.scatter([], [], marker="o", color=colours(i % 10), label=s)
+    ax.set_xlabel("coverage / physical bound, median [%]")
+    ax.set_ylabel("flights stranded [%]")
+    ax.set_title(f"bench plan: {result.seeds} truths per scenario")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", ncol=2)
+    fig.tight_layout()
+    return save_figure(fig, path)

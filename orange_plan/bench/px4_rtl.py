@@ -1,0 +1,356 @@
+"""A PX4-style "return when the flight time left runs short" rule, flown in the simulator.
+
+The rule (PX4-Autopilot, main branch; file names relative to its ``src/``):
+
+* ``lib/battery/battery.cpp``, ``Battery::computeRemainingTime``: flight time left
+  ``time_remaining_s = remaining capacity / average current``, the average being a first-order
+  low-pass filter (``AlphaFilter``, time constant 50 s, ``_current_average_filter_a``)
+  initialised with the parameter ``BAT_AVRG_CURRENT`` and updated while armed.
+* ``modules/navigator/rtl_params.yaml`` (``RtlTimeEstimator::getEstimate`` in
+  ``modules/navigator/rtl_time_estimator.cpp``): ``safe_time_estimate = RTL_TIME_FACTOR *
+  time_estimate + RTL_TIME_MARGIN`` with defaults ``RTL_TIME_FACTOR = 1.1`` and
+  ``RTL_TIME_MARGIN = 100 s``; ``time_estimate`` is the return path's horizontal length over
+  the cruise speed (plus climb/descent and landing time, none for our robots).
+* ``modules/commander/HealthAndArmingChecks/checks/batteryCheck.cpp``,
+  ``BatteryChecks::rtlEstimateCheck``: the failsafe flag ``battery_low_remaining_time`` is
+  raised when ``safe_time_estimate >= time_remaining_s``; its action is ``COM_FLTT_LOW_ACT``
+  (default 3: Return).
+
+Implemented here, in energy terms (our recordings carry battery power, not current):
+
+    time_left_s(t)    = (E_usable - E_used(t)) / P_avg(t)
+    P_avg             = low-pass of the recorded battery power, tau = 50 s, started at the
+                        planning model's cruise power on flat ground (as BAT_AVRG_CURRENT)
+    time_home_s(t)    = L_home(x(t)) / v_cruise,  L_home = length of the return path
+    return at the first sample where  1.1 * time_home_s + 100 s >= time_left_s
+
+``E_used`` integrates the recorded power (as PX4 integrates the measured current) and
+``E_usable`` is the scenario's usable energy (PX4's ``BAT_CAPACITY``). The return path is the
+minimum-energy roadmap path home (``planning.roadmap`` to-home field) from the nearest
+visible roadmap vertex; ``L_home`` is that path's length, so the time estimate is of the path
+actually flown home (PX4's ``RTL_TYPE = 0`` flies straight home, which obstacles forbid).
+The 100 s margin is PX4's default kept for every robot: it is 15 % of the AR.Drone's
+flight, < 1 % of the ground robots' (for them, effectively, only the x 1.1 remains).
+Where the scenario has ``time_limit_s``, the same look-ahead also turns home when
+``t + 1.1 * time_home_s + 100 s >= time_limit_s`` (PX4's ``COM_FLT_TIME_MAX`` acts only at
+the limit; the look-ahead keeps the lawnmower inside the same mission window as the planner).
+
+Flying it (``fly_with_return_rule``): simulate the whole lawnmower under the truth, find the
+first sample where the rule fires, then simulate the route actually flown (the lawnmower up to
+that point + the return path) under the same truth and seed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+from scipy.spatial import cKDTree
+
+from orange_plan.errors import InputError
+from orange_plan.planning.paths import clean_polyline
+
+RTL_TIME_FACTOR = 1.1
+"""PX4 ``RTL_TIME_FACTOR`` default [-] (navigator/rtl_params.yaml)."""
+
+RTL_TIME_MARGIN_S = 100.0
+"""PX4 ``RTL_TIME_MARGIN`` default [s] (navigator/rtl_params.yaml)."""
+
+CURRENT_AVERAGE_TAU_S = 50.0
+"""Time constant of PX4's ``_current_average_filter_a`` [s] (lib/battery/battery.cpp)."""
+
+RULE_RATE_HZ = 1.0
+"""Rate at which the rule is evaluated on a recording [Hz]."""
+
+
+@dataclass(frozen=True)
+class ReturnRule:
+    """PX4's remaining-flight-time return rule (see the module docstring).
+
+    Attributes
+    ----------
+    time_factor : RTL_TIME_FACTOR [-]
+    time_margin_s : RTL_TIME_MARGIN [s]
+    power_tau_s : averaging time constant of the battery power [s]; ``math.inf``: the plain
+        mean power since take-off
+    """
+
+    time_factor: float = RTL_TIME_FACTOR
+    time_margin_s: float = RTL_TIME_MARGIN_S
+    power_tau_s: float = CURRENT_AVERAGE_TAU_S
+
+    def __post_init__(self):
+        if not self.time_factor >= 1.0:
+            raise InputError(f"time_factor = {self.time_factor!r} must be >= 1 (PX4 range 1..2)")
+        if not self.time_margin_s >= 0.0:
+            raise InputError(f"time_margin_s = {self.time_margin_s!r} must be >= 0")
+        if not self.power_tau_s > 0.0:
+            raise InputError(f"power_tau_s = {self.power_tau_s!r} must be > 0")
+
+    def average_power_W(self, t_s, power_W, initial_W: float) -> np.ndarray:
+        """Low-pass of the battery power at each sample [W] (PX4 ``AlphaFilter``).
+
+        ``y_k = y_{k-1} + a_k (p_k - y_{k-1})`` with ``a_k = dt / (tau + dt)``, ``y_{-1} =
+        initial_W``; with ``tau = inf`` the running mean of the samples so far.
+        """
+        t, p = np.asarray(t_s, float), np.asarray(power_W, float)
+        if t.size == 0:
+            return np.empty(0)
+        if math.isinf(self.power_tau_s):
+            return np.cumsum(p) / np.arange(1, p.size + 1)
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        a = dt / (self.power_tau_s + dt)
+        y, _ = lfilter([a], [1.0, a - 1.0], np.clip(p, 0.0, None), zi=[(1.0 - a) * initial_W])
+        return y
+
+    def safe_time_home_s(self, time_home_s):
+        """``RTL_TIME_FACTOR * time_home + RTL_TIME_MARGIN`` [s]."""
+        return self.time_factor * np.asarray(time_home_s, float) + self.time_margin_s
+
+    def first_return_index(self, t_s, energy_used_J, power_avg_W, time_home_s,
+                           energy_usable_J: float, time_limit_s: float | None = None):
+        """First sample at which the robot turns home, or None if it never has to.
+
+        Fires where ``safe_time_home_s >= (energy_usable_J - energy_used_J) / power_avg_W``
+        (PX4's ``battery_low_remaining_time``) or, with a time limit, where
+        ``t_s + safe_time_home_s >= time_limit_s``.
+        """
+        used = np.asarray(energy_used_J, float)
+        p = np.maximum(np.asarray(power_avg_W, float), 1e-9)
+        safe = self.safe_time_home_s(time_home_s)
+        time_left = (energy_usable_J - used) / p
+        fire = safe >= time_left
+        if time_limit_s is not None:
+            fire |= np.asarray(t_s, float) + safe >= time_limit_s
+        return int(np.argmax(fire)) if fire.any() else None
+
+
+class HomePaths:
+    """Return paths home from any point: the roadmap's minimum-energy tree, joined straight.
+
+    A point joins the visible roadmap vertex (of its ``k`` nearest, and home) minimising
+    ``e_per_m |p - v| + E_home(v)``; the return path is ``p -> v -> ... -> home`` along the
+    to-home energy field, its length the sum of the tree's edges.
+    """
+
+    def __init__(self, reach, k: int = 10):
+        from orange_plan.planning.lawnmower import FreeSegments
+
+        self.segments_free = FreeSegments(reach.exact.world)
+        rm, field = reach.roadmap, reach.to_home
+        self.xy, self.home = rm.xy_m, rm.home_index
+        self.next, self.energy = field.next_vertex, field.energy_J
+        self.k = min(k, rm.n_vertices)
+        self.tree = cKDTree(self.xy)
+        self.speed_mps = float(reach.exact.speed_mps)
+        self.e_per_m = _flat_energy_per_m(reach.exact)
+        self.length_home = self._tree_lengths()
+
+    def _tree_lengths(self) -> np.ndarray:
+        length = np.full(len(self.xy), np.inf)
+        length[self.home] = 0.0
+        reached = np.flatnonzero(np.isfinite(self.energy))
+        for v in reached[np.argsort(self.energy[reached], kind="stable")]:
+            nxt = self.next[v]
+            if v != self.home and nxt >= 0:
+                length[v] = length[nxt] + float(np.hypot(*(self.xy[v] - self.xy[nxt])))
+        return length
+
+    def _join(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """Chosen vertex and its join length for each point (vertex -1: none visible)."""
+        pts = np.atleast_2d(np.asarray(points, float))
+        n = len(pts)
+        _, near = self.tree.query(pts, k=self.k)
+        cand = np.c_[near.reshape(n, self.k), np.full(n, self.home)]
+        a = np.repeat(pts, cand.shape[1], axis=0)
+        b = self.xy[cand.ravel()]
+        d = np.hypot(*(b - a).T).reshape(cand.shape)
+        ok = self.segments_free(a, b).reshape(cand.shape) | (d < 1e-9)
+        score = np.where(ok, self.e_per_m * d + self.energy[cand], np.inf)
+        best = np.argmin(score, axis=1)
+        rows = np.arange(n)
+        v = np.where(np.isfinite(score[rows, best]), cand[rows, best], -1)
+        return v, d[rows, best]
+
+    def length_m(self, points) -> np.ndarray:
+        """Length of the return path from each point [m] (inf where none is found)."""
+        v, d = self._join(points)
+        return np.where(v >= 0, d + self.length_home[np.maximum(v, 0)], np.inf)
+
+    def time_s(self, points) -> np.ndarray:
+        """Return path length over the cruise speed [s] (PX4's ``time_estimate``)."""
+        return self.length_m(points) / self.speed_mps
+
+    def path(self, point) -> np.ndarray:
+        """Vertices of the return path from ``point`` to home [m]."""
+        p = np.asarray(point, float).reshape(2)
+        v, _ = self._join(p[None])
+        v = int(v[0])
+        if v < 0:
+            from orange_plan.errors import PlanningError
+
+            raise PlanningError(f"no return path home from ({p[0]:g}, {p[1]:g})")
+        seq = [v]
+        while seq[-1] != self.home:
+            seq.append(int(self.next[seq[-1]]))
+        return clean_polyline(np.vstack([p, self.xy[seq]]))
+
+
+def _flat_energy_per_m(cost) -> float:
+    """Energy per metre at the cruise speed on flat default ground [J/m] (joins' weight)."""
+    from orange_plan.physics.range import flat_state
+
+    state = flat_state(cost.speed_mps, cost.world.default_crr, cost.sensor_rate_Hz)
+    return float(cost.model.segment_energy(state, 1.0, cost.duty_cycle).total_J)
+
+
+def cruise_power_W(ctx, speed_mps: float) -> float:
+    """Battery power at cruise on flat default ground, stops included (BAT_AVRG_CURRENT) [W]."""
+    from orange_plan.physics.range import flat_state
+
+    state = flat_state(speed_mps, ctx.world.default_crr, ctx.sensor_rate_Hz)
+    e = ctx.model.segment_energy(state, 1.0, ctx.duty_cycle)
+    return float(e.total_J / e.mission_time_s)
+
+
+@dataclass(frozen=True)
+class ReturnDecision:
+    """Where the rule turned the robot home in the first (whole-lawnmower) simulation.
+
+    Attributes
+    ----------
+    fired : the rule fired (else the lawnmower was finished and the robot came home)
+    t_s : mission time of the turn [s]
+    xy_m : position of the turn [m]
+    s_m : arclength along the lawnmower of the turn [m]
+    time_home_s, time_left_s : PX4's time estimate home and flight time left then [s]
+    """
+
+    fired: bool
+    t_s: float
+    xy_m: tuple[float, float]
+    s_m: float
+    time_home_s: float
+    time_left_s: float
+
+
+def decide_return(ctx, frame, lawn_xy, home: HomePaths, rule: ReturnRule) -> ReturnDecision:
+    """Apply the rule to a simulated recording of the lawnmower (``frame``, SPEC §3 columns)."""
+    t = frame["t_s"].to_numpy(float)
+    power = frame["power_W"].to_numpy(float)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    used = np.cumsum(power) * dt
+    avg = rule.average_power_W(t, power, cruise_power_W(ctx, home.speed_mps))
+    every = max(1, int(round(1.0 / (RULE_RATE_HZ * dt))))
+    idx = np.arange(0, t.size, every)
+    xy = frame[["x_m", "y_m"]].to_numpy(float)
+    time_home = home.time_s(xy[idx])
+    usable = ctx.scenario.battery.usable_J
+    i = rule.first_return_index(t[idx], used[idx], avg[idx], time_home, usable,
+                                ctx.scenario.mission.time_limit_s)
+    if i is None:
+        return ReturnDecision(False, float(t[-1]), tuple(xy[-1]), _length(lawn_xy), 0.0,
+                              float((usable - used[-1]) / max(avg[-1], 1e-9)))
+    k = idx[i]
+    s = locate_on_path(lawn_xy, xy[k], _distance_driven(frame, dt, k))
+    return ReturnDecision(True, float(t[k]), tuple(float(v) for v in xy[k]), s,
+                          float(time_home[i]), float((usable - used[k]) / max(avg[k], 1e-9)))
+
+
+def _length(xy) -> float:
+    return float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+
+
+def _distance_driven(frame, dt: float, k: int) -> float:
+    return float(np.sum(frame["v_mps"].to_numpy(float)[:k]) * dt)
+
+
+def locate_on_path(xy, point, s_hint_m: float, window: float = 0.1) -> float:
+    """Arclength of the point of a polyline nearest ``point`` within ``s_hint_m`` +- 10 % (a
+    path that crosses itself is otherwise ambiguous) [m]."""
+    xy = np.asarray(xy, float)
+    p = np.asarray(point, float)
+    a, b = xy[:-1], xy[1:]
+    seg = np.hypot(*(b - a).T)
+    s0 = np.r_[0.0, np.cumsum(seg)]
+    tol = window * s_hint_m + 20.0
+    near = (s0[1:] >= s_hint_m - tol) & (s0[:-1] <= s_hint_m + tol)
+    if not near.any():
+        near[:] = True
+    j = np.flatnonzero(near)
+    d = b[j] - a[j]
+    u = np.clip(np.einsum("ij,ij->i", p - a[j], d) / np.maximum(np.einsum("ij,ij->i", d, d),
+                                                                  1e-18), 0.0, 1.0)
+    dist = np.hypot(*(a[j] + u[:, None] * d - p).T)
+    m = int(np.argmin(dist))
+    return float(s0[j[m]] + u[m] * seg[j[m]])
+
+
+def cut_path(xy, s_m: float) -> np.ndarray:
+    """The polyline from its start to arclength ``s_m`` (the cut point included) [m]."""
+    xy = np.asarray(xy, float)
+    s0 = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+    if s_m >= s0[-1]:
+        return xy.copy()
+    j = int(np.searchsorted(s0, s_m, side="right")) - 1
+    u = (s_m - s0[j]) / max(s0[j + 1] - s0[j], 1e-18)
+    end = xy[j] + u * (xy[j + 1] - xy[j])
+    return clean_polyline(np.vstack([xy[: j + 1], end]))
+
+
+def flown_route(lawn_xy, decision: ReturnDecision, home: HomePaths) -> np.ndarray:
+    """The route actually flown: the lawnmower up to the turn, then the return path [m]."""
+    if not decision.fired:
+        return np.asarray(lawn_xy, float)
+    prefix = cut_path(lawn_xy, decision.s_m)
+    back = home.path(prefix[-1])
+    return clean_polyline(np.vstack([prefix, back[1:]]))
+
+
+SIM_ENERGY_FACTOR = 1.6
+"""The first (whole-lawnmower) simulation stops where the planning model has used this many
+times the usable energy: no truth within the calibration uncertainty flies that far."""
+
+
+def simulation_horizon(ctx, cost, lawn_xy) -> np.ndarray:
+    """The lawnmower cut where the planning model has used ``SIM_ENERGY_FACTOR`` x the usable
+    energy (or 1.5 x the time limit plus an hour) [m]; the whole path if it ends before."""
+    from orange_plan.planning.lawnmower import cumulative_energy_time
+
+    lawn_xy = np.asarray(lawn_xy, float)
+    energy, t = cumulative_energy_time(ctx, cost, lawn_xy)
+    over = energy >= SIM_ENERGY_FACTOR * ctx.scenario.battery.usable_J
+    limit = ctx.scenario.mission.time_limit_s
+    if limit is not None:
+        over |= t >= 1.5 * limit + 3600.0
+    if not over.any():
+        return lawn_xy
+    return lawn_xy[: int(np.argmax(over)) + 1]
+
+
+def fly_with_return_rule(ctx, lawn_xy, home: HomePaths, truth, seed: int,
+                         rule: ReturnRule = ReturnRule(), cost=None,
+                         sample_rate_Hz: float = 10.0):
+    """Fly the lawnmower under ``truth`` and turn home by ``rule`` (module docstring).
+
+    Returns
+    -------
+    (SimResult of the route actually flown, ReturnDecision, that route's vertices [m])
+    """
+    from orange_plan.sim.route import Route
+    from orange_plan.sim.simulator import simulate
+
+    lawn_xy = np.asarray(lawn_xy, float)
+    first = lawn_xy if cost is None else simulation_horizon(ctx, cost, lawn_xy)
+    speed = np.full(len(first), home.speed_mps)
+    sim1 = simulate(ctx, Route(first, speed, "lawnmower"), truth, seed=seed,
+                    sample_rate_Hz=sample_rate_Hz)
+    decision = decide_return(ctx, sim1.frame, first, home, rule)
+    route = flown_route(lawn_xy, decision, home)
+    if not decision.fired and len(first) == len(lawn_xy):
+        return sim1, decision, route
+    sim2 = simulate(ctx, Route(route, np.full(len(route), home.speed_mps), "lawnmower + RTL"),
+                    truth, seed=seed, sample_rate_Hz=sample_rate_Hz)
+    return sim2, decision, route

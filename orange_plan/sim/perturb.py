@@ -1,0 +1,106 @@
+"""Truths that differ from the planning model within its calibration uncertainty.
+
+A benchmark of plans with a guaranteed return must fly them in a world the planner does not
+know exactly, but one it *could* be: each truth draws the model's lumped coefficients from
+their covariance (``EnergyModel.theta``, ``EnergyModel.cov``: the calibration's, or the
+a-priori ``prior_relative_stderr`` one) and adds a small run-to-run discrepancy that no
+coefficient explains (``DISCREPANCY``):
+
+    theta_true ~ N(theta, Cov), truncated at 0 (a coefficient never changes sign)
+    wind gusts: Ornstein-Uhlenbeck, std = gust_fraction x mean wind speed, tau = gust_tau_s
+    terrain roughness: crr perturbation, std = roughness_fraction x default crr, correlated
+        over roughness_length_m (ground robots only)
+
+Everything else is the scenario's (battery, map, mean wind): the truth has the usable energy
+the planner assumes. ``Truth`` objects are what ``sim.simulator.simulate`` (and
+``orange-plan simulate --truth``) take.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from orange_plan.errors import InputError
+from orange_plan.sim.truth import Truth, Wind
+
+
+@dataclass(frozen=True)
+class Discrepancy:
+    """Run-to-run effects beyond the coefficients' uncertainty (see the module docstring).
+
+    Attributes
+    ----------
+    gust_fraction : gust std / mean wind speed [-]
+    gust_tau_s : gust correlation time [s]
+    roughness_fraction : crr perturbation std / default crr [-]
+    roughness_length_m : its correlation length along the path [m]
+    """
+
+    gust_fraction: float = 0.1
+    gust_tau_s: float = 10.0
+    roughness_fraction: float = 0.05
+    roughness_length_m: float = 5.0
+
+
+DISCREPANCY = Discrepancy()
+"""Default discrepancy: gusts of 10 % of the mean wind, crr roughness of 5 % (zero-mean)."""
+
+NONE = Discrepancy(0.0, 10.0, 0.0, 5.0)
+"""No discrepancy: coefficients only."""
+
+
+def draw_coefficients(model, n: int, rng) -> list[dict[str, float]]:
+    """``n`` coefficient sets from N(theta, Cov), truncated at zero (resampled, then clipped).
+
+    Coefficients with zero variance keep their value.
+    """
+    theta, cov = np.asarray(model.theta, float), np.asarray(model.cov, float)
+    draws = rng.multivariate_normal(theta, cov, size=n, method="eigh")
+    for _ in range(10):  # resample the few draws with a sign flip (truncated normal)
+        bad = np.any((draws < 0) & (theta >= 0), axis=1)
+        if not bad.any():
+            break
+        draws[bad] = rng.multivariate_normal(theta, cov, size=int(bad.sum()), method="eigh")
+    draws = np.where(theta >= 0, np.maximum(draws, 0.0), draws)
+    return [dict(zip(model.names, map(float, d))) for d in draws]
+
+
+def calibration_truths(ctx, n: int, seed: int = 0,
+                       discrepancy: Discrepancy = DISCREPANCY) -> list[Truth]:
+    """``n`` truths within the calibration uncertainty of ``ctx.model`` (seeded).
+
+    Parameters
+    ----------
+    ctx : Context (scenario, world, model with its covariance)
+    n : number of truths (>= 1)
+    seed : random seed; the same seed gives the same truths
+    discrepancy : run-to-run effects added to every truth
+
+    Returns
+    -------
+    list of Truth, each with ``coefficients`` overrides and the discrepancy's gusts/roughness
+
+    Raises
+    ------
+    InputError
+        If ``n`` < 1.
+    """
+    if n < 1:
+        raise InputError(f"number of truths n = {n} must be >= 1")
+    rng = np.random.default_rng(seed)
+    env = ctx.scenario.environment
+    gust = discrepancy.gust_fraction * env.wind_speed_mps
+    wind = Wind(env.wind_speed_mps, env.wind_from_deg, gust, discrepancy.gust_tau_s, True)
+    ground = ctx.scenario.robot.kind == "ground"
+    rough = discrepancy.roughness_fraction * ctx.world.default_crr if ground else 0.0
+    return [Truth(coefficients=c, wind=wind, roughness_crr_std=rough,
+                  roughness_length_m=discrepancy.roughness_length_m)
+            for c in draw_coefficients(ctx.model, n, rng)]
+
+
+def truth_multipliers(ctx, truth: Truth) -> dict[str, float]:
+    """theta_true / theta for each non-zero coefficient (what a truth changes) [-]."""
+    return {k: v / ctx.model.coefficient(k) for k, v in truth.coefficients.items()
+            if ctx.model.coefficient(k) != 0}
