@@ -202,6 +202,7 @@ def _time_left_s(ctx, start: StartState) -> float:
 def tour_setup(ctx, start: StartState, n_vertices: int, seed: int, max_candidates: int,
                step) -> TourSetup:
     """Roadmap and fields, coverage candidates that fit the battery, and their leg matrices."""
+    _check_not_boxed_in(ctx)
     reach = prepare_reach(ctx, start.xy_m, start.energy_used_J, n_vertices=n_vertices, seed=seed,
                           speed_mps=tour_speed_mps(ctx, start), with_gradient=True)
     home = home_status(reach)
@@ -224,6 +225,20 @@ def tour_setup(ctx, start: StartState, n_vertices: int, seed: int, max_candidate
             "the reserve kept: the battery is too small to leave home")
     step(f"energy legs between {cands.n} candidates")
     return _legs(ctx, reach, cands, grid, covered)
+
+
+def _check_not_boxed_in(ctx) -> None:
+    """Refuse a home whose free pocket is smaller than one footprint: nothing to explore."""
+    import shapely
+
+    free = ctx.world.map.free_space
+    home = shapely.Point(ctx.world.home_xy_m)
+    pocket = next((g for g in getattr(free, "geoms", [free]) if g.intersects(home)), None)
+    r = ctx.scenario.mission.sensor_radius_m
+    if pocket is not None and pocket.area < np.pi * r**2:
+        raise InputError(f"home is boxed in: the free area around it is {pocket.area:.3g} m^2, "
+                         f"less than one sensor footprint ({np.pi * r**2:.3g} m^2); nothing "
+                         "to explore")
 
 
 def _mask(grid, cells) -> np.ndarray:
