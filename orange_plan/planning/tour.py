@@ -35,7 +35,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
-from scipy.spatial import cKDTree
 
 from orange_plan.errors import InputError, PlanningError
 from orange_plan.physics.pathcost import path_energy, segments_energy_jacobian, subdivide
@@ -56,7 +55,7 @@ from orange_plan.planning.reach import (
     query_points,
     reserve_J,
 )
-from orange_plan.planning.roadmap import add_vertices
+from orange_plan.planning.roadmap import EnergyField, add_vertices, energy_field
 
 COST_MODES = ("physics", "distance")
 MAX_CANDIDATES = 400
@@ -81,6 +80,7 @@ class TourSetup:
     predecessors: np.ndarray  # (P, V) Dijkstra predecessors on the extended roadmap
     point_vertex: np.ndarray  # (P,) roadmap vertex of each point
     roadmap_xy_m: np.ndarray  # (V, 2)
+    to_home: EnergyField  # energy to home from every vertex of the extended roadmap
 
 
 def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
@@ -129,13 +129,13 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
         tour = orienteering.solve(problem, step)
         if not tour.nodes:
             break
-        xy = walk_xy(setup, tour.nodes)
-        step(f"speeds and homing check on {len(xy)} vertices")
-        plan = evaluate_walk(planning_ctx, reach, xy, start, optimise_speed)
+        ids = walk_vertices(setup, tour.nodes)
+        step(f"speeds and homing check on {len(ids)} vertices")
+        plan = evaluate_walk(planning_ctx, setup, ids, start, optimise_speed)
         energy_short = -float(plan.margin_J.min())
         overrun_s = float(plan.t_s[-1]) - start.time_s - time_left
         if energy_short <= 0 and overrun_s <= TIME_TOLERANCE * time_left:
-            return _finish(planning_ctx, setup, plan, tour, start, t0)
+            return _finish(planning_ctx, setup, plan, tour, ids, start, t0)
         last_error = f"{max(energy_short, 0):.3g} J short, {max(overrun_s, 0):.3g} s over"
         if energy_short > 0:
             budget -= 1.05 * energy_short + 1e-3 * remaining
@@ -345,7 +345,9 @@ def _legs(ctx, reach: Reachability, cands: Candidates, grid, covered) -> TourSet
     problem = orienteering.Orienteering(
         travel_J, travel_s, entry, exit_, service_J, service_s, cells, grid.cell_area_m2,
         start=0, end=1, budget_J=0.0, covered=covered)
-    return TourSetup(reach, cands, grid, problem, points_xy, pred, point_vertex, extended.xy_m)
+    to_home = energy_field(extended, rm.home_index, towards=True)
+    return TourSetup(reach, cands, grid, problem, points_xy, pred, point_vertex, extended.xy_m,
+                     to_home)
 
 
 def _leg_times(ctx, speed_mps: float, xy: np.ndarray, pred: np.ndarray) -> np.ndarray:
@@ -374,10 +376,11 @@ def _reserve_estimate(ctx, setup: TourSetup) -> float:
     p = setup.problem
     trip = p.travel_J[0, p.entry[:, 0]] + p.travel_J[p.exit[:, 0], 1]
     k = int(np.argmax(np.where(np.isfinite(trip), trip, -1)))
-    xy = walk_xy(setup, [(k, 0)])
+    ids = walk_vertices(setup, [(k, 0)])
+    xy = setup.roadmap_xy_m[ids]
     e = path_energy(reach.exact.model, reach.exact.world, xy, reach.exact.speed_mps,
                     reach.exact.duty_cycle, reach.exact.sensor_rate_Hz).total_J
-    var = _variance(reach, xy, reach.exact.speed_mps)
+    var = _variance(reach, xy, reach.exact.speed_mps, home_legs(setup, ids)[1])
     ratio = float(reserve_J(res, reach.energy_available_J, var[-1])) / max(e, 1e-9)
     # reserve ~ ratio * E_tour and E_tour + reserve <= left
     return left * ratio / (1.0 + ratio)
@@ -386,21 +389,32 @@ def _reserve_estimate(ctx, setup: TourSetup) -> float:
 # --- the walk: polyline, speeds, re-evaluation ---------------------------------------------
 
 
-def walk_xy(setup: TourSetup, nodes) -> np.ndarray:
-    """The drivable polyline start -> candidates (in order and direction) -> home [m]."""
+def walk_vertices(setup: TourSetup, nodes) -> np.ndarray:
+    """Roadmap vertices of the walk start -> candidates (in order and direction) -> home.
+
+    Every vertex of a walk is a vertex of the extended roadmap (legs follow roadmap edges,
+    lanes join two candidate end points), so its return home is read off the to-home field.
+    """
     p = setup.problem
-    parts = [setup.points_xy_m[:1]]
+    parts = [setup.point_vertex[:1]]
     at = p.start
     for i, o in nodes:
         parts.append(_leg(setup, at, int(p.entry[i, o])))
-        parts.append(setup.points_xy_m[[p.exit[i, o]]])
+        parts.append(setup.point_vertex[[p.exit[i, o]]])
         at = int(p.exit[i, o])
     parts.append(_leg(setup, at, p.end))
-    return clean_polyline(np.concatenate(parts))
+    ids = np.concatenate(parts).astype(int)
+    ids = ids[np.r_[True, ids[1:] != ids[:-1]]]
+    return ids if len(ids) >= 2 else np.r_[ids, ids]
+
+
+def walk_xy(setup: TourSetup, nodes) -> np.ndarray:
+    """The drivable polyline of ``walk_vertices`` [m]."""
+    return setup.roadmap_xy_m[walk_vertices(setup, nodes)]
 
 
 def _leg(setup: TourSetup, a: int, b: int) -> np.ndarray:
-    """Roadmap vertices of the leg from point a to point b (both end points included)."""
+    """Roadmap vertex ids of the leg from point a to point b (both ends included)."""
     pred = setup.predecessors[a]
     target = int(setup.point_vertex[b])
     source = int(setup.point_vertex[a])
@@ -410,7 +424,7 @@ def _leg(setup: TourSetup, a: int, b: int) -> np.ndarray:
         if nxt < 0:
             raise PlanningError(f"no roadmap leg between tour points {a} and {b}")
         seq.append(nxt)
-    return setup.roadmap_xy_m[seq[::-1]]
+    return np.array(seq[::-1])
 
 
 def sensing_speed_mps(ctx) -> float:
@@ -425,20 +439,21 @@ def sensing_speed_mps(ctx) -> float:
     return float(np.clip(cap, sc.robot.v_min_mps, sc.robot.v_max_mps))
 
 
-def evaluate_walk(ctx, reach: Reachability, xy: np.ndarray, start: StartState,
+def evaluate_walk(ctx, setup: TourSetup, ids: np.ndarray, start: StartState,
                   optimise_speed: bool = True) -> Plan:
     """Speeds for a walk and its exact per-vertex figures (energies, return, reserve, margin).
 
     The figures go into a Plan whose summary is completed by ``_finish``.
     """
+    reach = setup.reach
+    xy = setup.roadmap_xy_m[ids]
     speeds = _speeds(ctx, xy, start) if optimise_speed else None
     if speeds is None:
         speeds = np.full(len(xy) - 1, reach.exact.speed_mps)
     ex = reach.exact
     energy = path_energy(ex.model, ex.world, xy, speeds, ex.duty_cycle, ex.sensor_rate_Hz)
     used = reach.energy_used_J + energy.cumulative_J
-    home_J, home_grad = home_legs(reach, xy)
-    home_J[-1], home_grad[-1] = 0.0, 0.0
+    home_J, home_grad = home_legs(setup, ids)
     var = _variance(reach, xy, speeds, home_grad)
     res = reserve_J(reach.reserve, reach.energy_available_J, var)
     margin = reach.energy_available_J - used - home_J - res
@@ -469,36 +484,19 @@ def _lane_caps(ctx, xy: np.ndarray) -> np.ndarray:
     return np.full(len(xy) - 1, sensing_speed_mps(ctx))
 
 
-def home_legs(reach: Reachability, xy: np.ndarray):
-    """Energy [J] and d energy / d theta of the best roadmap return home from each point.
+def home_legs(setup: TourSetup, ids: np.ndarray):
+    """Energy [J] and d energy / d theta of the best roadmap return home from walk vertices.
 
-    Each point is joined to its ``K_HOME`` nearest roadmap vertices by straight segments that
-    are collision-checked exactly; the return is the cheapest such segment plus that vertex's
-    energy-to-home field value (raster terrain, as the roadmap weights).
+    The return is the minimum-energy path on the roadmap the walk was built from (raster
+    terrain, as the roadmap weights), home itself costing nothing.
     """
-    rm, fast = reach.roadmap, reach.fast
-    pts = np.asarray(xy, float)
-    n, k = len(pts), min(K_HOME, rm.n_vertices)
-    _, near = cKDTree(rm.xy_m).query(pts, k=k)
-    near = near.reshape(n, k)
-    a = np.repeat(pts, k, axis=0)
-    b = rm.xy_m[near.ravel()]
-    same = np.hypot(*(a - b).T) < 1e-9
-    ok = (same | reach.exact.world.segments_free(a, b)).reshape(n, k)
-    _, c_out, _, j_out = fast.costs(b, a)
-    e = np.where(ok, c_out.reshape(n, k) + reach.to_home.energy_J[near], np.inf)
-    best = np.argmin(e, axis=1)
-    rows = np.arange(n)
-    energy = e[rows, best]
+    field = setup.to_home
+    energy = field.energy_J[ids].astype(float)
     if not np.all(np.isfinite(energy)):
         bad = int(np.flatnonzero(~np.isfinite(energy))[0])
-        raise PlanningError(f"walk vertex {bad} at {tuple(np.round(pts[bad], 2))} m has no "
-                            "roadmap return home")
-    grad = np.zeros((n, reach.to_home.gradient.shape[1]))
-    if grad.shape[1]:
-        kk = j_out.shape[1]
-        grad = j_out.reshape(n, k, kk)[rows, best] + reach.to_home.gradient[near[rows, best]]
-    return energy, grad
+        raise PlanningError(f"walk vertex {bad} at {tuple(np.round(setup.roadmap_xy_m[ids[bad]], 2))}"
+                            " m has no roadmap return home")
+    return energy, field.gradient[ids].copy()
 
 
 def _variance(reach: Reachability, xy, speeds, home_grad=None, always: bool = False):
@@ -519,7 +517,7 @@ def _variance(reach: Reachability, xy, speeds, home_grad=None, always: bool = Fa
 # --- summary -------------------------------------------------------------------------------
 
 
-def _finish(ctx, setup: TourSetup, plan: Plan, tour, start: StartState, t0: float) -> Plan:
+def _finish(ctx, setup: TourSetup, plan: Plan, tour, ids, start: StartState, t0: float) -> Plan:
     """Covered area, waypoints and the SPEC §4 summary."""
     reach = setup.reach
     world = ctx.world
@@ -543,7 +541,7 @@ def _finish(ctx, setup: TourSetup, plan: Plan, tour, start: StartState, t0: floa
         "coverage_fraction": float(covered.area / free_area) if free_area > 0 else 0.0,
         "coverage_bound_m2": float(bound),
         "duration_s": float(plan.t_s[-1] - start.time_s),
-        "return_probability": return_probability(reach, plan),
+        "return_probability": return_probability(setup, plan, ids),
         "planner_seconds": _time.perf_counter() - t0,
         "energy_used_start_J": reach.energy_used_J,
         "candidates_visited": len(tour.nodes),
@@ -562,7 +560,7 @@ def min_energy_per_m(ctx) -> float:
     return simplified_range(ctx.scenario, ctx.model, crr).energy_per_m_J
 
 
-def return_probability(reach: Reachability, plan: Plan) -> float:
+def return_probability(setup: TourSetup, plan: Plan, ids) -> float:
     """Probability of getting home from the worst vertex of the plan [-].
 
     The energy needed from a vertex (used so far + return) is taken as normal around its
@@ -570,8 +568,8 @@ def return_probability(reach: Reachability, plan: Plan) -> float:
     """
     from scipy.stats import norm
 
-    _, grad = home_legs(reach, plan.xy_m)
-    grad[-1] = 0.0
+    reach = setup.reach
+    _, grad = home_legs(setup, ids)
     var = _variance(reach, plan.xy_m, plan.speed_mps[:-1], grad, always=True)
     slack = reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J
     sd = np.sqrt(np.maximum(var, 0.0))
