@@ -64,7 +64,8 @@ def worlds(draw):
 def test_tour_returns_home_with_non_negative_margins(tmp_path_factory, spec, seed, probe):
     ctx = load_context(write_world(tmp_path_factory.mktemp("tour"), **spec))
     try:
-        plan = plan_tour(ctx, n_vertices=250, seed=seed, max_candidates=60)
+        plan = plan_tour(ctx, n_vertices=250, seed=seed, max_candidates=60, bitstar_s=0.1,
+                         bitstar_legs=1)
     except InputError as exc:  # battery too small to leave: must be said, not crash
         event("refused: battery too small")
         assert "too small" in str(exc) or "reserve" in str(exc)

@@ -55,7 +55,7 @@ from orange_plan.planning.reach import (
     query_points,
     reserve_J,
 )
-from orange_plan.planning.roadmap import EnergyField, add_vertices, energy_field
+from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, energy_field
 
 COST_MODES = ("physics", "distance")
 MAX_CANDIDATES = 400
@@ -64,6 +64,10 @@ MAX_BUDGET_TRIES = 6
 """Times the budget is lowered when the re-evaluated walk breaks a homing constraint."""
 TIME_TOLERANCE = 1e-6
 """Relative overrun of the time limit accepted as the optimiser's round-off [-]."""
+BITSTAR_S = 0.5
+"""BIT* budget per refined leg [s]."""
+BITSTAR_LEGS = 3
+"""Costliest legs offered to BIT* per tour."""
 K_HOME = 8
 """Roadmap vertices each walk vertex is joined to for its return home."""
 
@@ -79,13 +83,18 @@ class TourSetup:
     points_xy_m: np.ndarray  # (P, 2): 0 = start, 1 = home, then candidate end points
     predecessors: np.ndarray  # (P, V) Dijkstra predecessors on the extended roadmap
     point_vertex: np.ndarray  # (P,) roadmap vertex of each point
-    roadmap_xy_m: np.ndarray  # (V, 2)
+    roadmap: Roadmap  # the reach roadmap extended by the candidates' end points
     to_home: EnergyField  # energy to home from every vertex of the extended roadmap
+
+    @property
+    def roadmap_xy_m(self) -> np.ndarray:
+        return self.roadmap.xy_m
 
 
 def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
               n_vertices: int = 5000, seed: int = 0, progress=None,
-              max_candidates: int = MAX_CANDIDATES, optimise_speed: bool = True) -> Plan:
+              max_candidates: int = MAX_CANDIDATES, optimise_speed: bool = True,
+              bitstar_s: float = BITSTAR_S, bitstar_legs: int = BITSTAR_LEGS) -> Plan:
     """Plan an exploration tour (see the module docstring).
 
     Parameters
@@ -99,6 +108,8 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     progress : callable(str) told what is being done, or None
     max_candidates : coverage candidates kept for the search
     optimise_speed : choose speeds with the CasADi optimiser (else the cruise speed)
+    bitstar_s, bitstar_legs : BIT* budget per leg [s] and how many of the costliest legs it
+        may refine (``refine_legs``); 0 turns refinement off
 
     Raises
     ------
@@ -129,13 +140,16 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
         tour = orienteering.solve(problem, step)
         if not tour.nodes:
             break
-        ids = walk_vertices(setup, tour.nodes)
+        step("BIT* on the costliest legs")
+        walk_setup, ids, refined = refine_legs(setup, tour.nodes, bitstar_s, bitstar_legs, seed)
         step(f"speeds and homing check on {len(ids)} vertices")
-        plan = evaluate_walk(planning_ctx, setup, ids, start, optimise_speed)
+        plan = evaluate_walk(planning_ctx, walk_setup, ids, start, optimise_speed)
         energy_short = -float(plan.margin_J.min())
         overrun_s = float(plan.t_s[-1]) - start.time_s - time_left
         if energy_short <= 0 and overrun_s <= TIME_TOLERANCE * time_left:
-            return _finish(planning_ctx, setup, plan, tour, ids, start, t0)
+            plan = _finish(planning_ctx, walk_setup, plan, tour, ids, start, t0)
+            plan.summary["legs_refined_by_bitstar"] = refined
+            return plan
         last_error = f"{max(energy_short, 0):.3g} J short, {max(overrun_s, 0):.3g} s over"
         if energy_short > 0:
             budget -= 1.05 * energy_short + 1e-3 * remaining
@@ -346,7 +360,7 @@ def _legs(ctx, reach: Reachability, cands: Candidates, grid, covered) -> TourSet
         travel_J, travel_s, entry, exit_, service_J, service_s, cells, grid.cell_area_m2,
         start=0, end=1, budget_J=0.0, covered=covered)
     to_home = energy_field(extended, rm.home_index, towards=True)
-    return TourSetup(reach, cands, grid, problem, points_xy, pred, point_vertex, extended.xy_m,
+    return TourSetup(reach, cands, grid, problem, points_xy, pred, point_vertex, extended,
                      to_home)
 
 
@@ -395,6 +409,11 @@ def walk_vertices(setup: TourSetup, nodes) -> np.ndarray:
     Every vertex of a walk is a vertex of the extended roadmap (legs follow roadmap edges,
     lanes join two candidate end points), so its return home is read off the to-home field.
     """
+    return _join(_walk_parts(setup, nodes))
+
+
+def _walk_parts(setup: TourSetup, nodes) -> list[np.ndarray]:
+    """The walk as alternating vertex arrays: [start], leg, [exit], leg, ..., leg to home."""
     p = setup.problem
     parts = [setup.point_vertex[:1]]
     at = p.start
@@ -403,9 +422,54 @@ def walk_vertices(setup: TourSetup, nodes) -> np.ndarray:
         parts.append(setup.point_vertex[[p.exit[i, o]]])
         at = int(p.exit[i, o])
     parts.append(_leg(setup, at, p.end))
+    return parts
+
+
+def _join(parts) -> np.ndarray:
     ids = np.concatenate(parts).astype(int)
     ids = ids[np.r_[True, ids[1:] != ids[:-1]]]
     return ids if len(ids) >= 2 else np.r_[ids, ids]
+
+
+def refine_legs(setup: TourSetup, nodes, seconds: float = BITSTAR_S,
+                max_legs: int = BITSTAR_LEGS, seed: int = 0):
+    """Replace the costliest legs by BIT*'s paths where those are cheaper ("where it pays").
+
+    The roadmap legs are already near the grid optimum (``bench reach``), so only the
+    ``max_legs`` legs of highest exact energy get ``seconds`` of BIT* each; a BIT* path is
+    kept when its exact energy is lower by more than 0.1 %. Its vertices join the roadmap
+    (collision-checked edges) and the to-home field is recomputed, so the homing check reads
+    every vertex's return as before. Returns (setup, walk vertex ids, legs improved).
+    """
+    from orange_plan.planning.paths import bitstar_path
+
+    parts = _walk_parts(setup, nodes)
+    if seconds <= 0 or max_legs <= 0:
+        return setup, _join(parts), 0
+    ex, xy = setup.reach.exact, setup.roadmap_xy_m
+    legs = [k for k in range(1, len(parts), 2) if len(parts[k]) >= 2]
+    energy = {k: path_energy(ex.model, ex.world, xy[parts[k]], ex.speed_mps, ex.duty_cycle,
+                             ex.sensor_rate_Hz).total_J for k in legs}
+    costly = sorted(legs, key=lambda k: -energy[k])[:max_legs]
+    new_xy, replaced = [], {}
+    for k in costly:
+        a, b = xy[parts[k][0]], xy[parts[k][-1]]
+        bit = bitstar_path(setup.reach.fast, ex, a, b, seconds, seed)
+        if bit is None or bit.energy_J >= energy[k] * (1 - 1e-3) or len(bit.xy_m) < 3:
+            continue
+        inner = bit.xy_m[1:-1]
+        first = setup.roadmap.n_vertices + sum(len(v) for v in new_xy)
+        replaced[k] = np.r_[parts[k][0], first + np.arange(len(inner)), parts[k][-1]]
+        new_xy.append(inner)
+    if not replaced:
+        return setup, _join(parts), 0
+    roadmap = add_vertices(setup.reach.fast, setup.roadmap, np.concatenate(new_xy))
+    to_home = energy_field(roadmap, setup.roadmap.home_index, towards=True)
+    new_ids = np.concatenate(list(replaced.values()))
+    if not np.all(np.isfinite(to_home.energy_J[new_ids])):
+        return setup, _join(parts), 0  # a BIT* vertex the roadmap cannot join: keep the legs
+    parts = [replaced.get(k, part) for k, part in enumerate(parts)]
+    return replace(setup, roadmap=roadmap, to_home=to_home), _join(parts), len(replaced)
 
 
 def walk_xy(setup: TourSetup, nodes) -> np.ndarray:
