@@ -61,6 +61,33 @@ def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surface
     return path
 
 
+def draw_world_spec(draw, width_cells=(15, 25), height_cells=(10, 20), box_cells=(4, 6),
+                    hill_height_m=8.0, ramp_max=0.15, surface_width_m=10.0) -> dict:
+    """A random ``write_world`` spec inside a hypothesis ``@composite``: a rectangle on a 2 m
+    lattice, up to three boxes, a hill, a ramp or flat ground, and one slow surface strip."""
+    from hypothesis import strategies as st
+
+    w = draw(st.integers(*width_cells)) * 2.0
+    h = draw(st.integers(*height_cells)) * 2.0
+    boxes = []
+    for _ in range(draw(st.integers(0, 3))):
+        x0 = draw(st.integers(3, int(w / 2) - 2)) * 2.0
+        y0 = draw(st.integers(0, int(h / 2) - 2)) * 2.0
+        bw = draw(st.integers(1, box_cells[0])) * 2.0
+        bh = draw(st.integers(1, box_cells[1])) * 2.0
+        boxes.append((x0, y0, min(x0 + bw, w - 2), min(y0 + bh, h)))
+    terrain = draw(st.sampled_from(["hill", "ramp", "flat"]))
+    hill, ramp = None, 0.0
+    if terrain == "hill":
+        hill = (draw(st.floats(0, w)), draw(st.floats(0, h)), draw(st.floats(1, hill_height_m)),
+                draw(st.floats(3, 10)))
+    elif terrain == "ramp":
+        ramp = draw(st.floats(-ramp_max, ramp_max))
+    sx = draw(st.integers(0, int(w / 2) - 1)) * 2.0
+    surfaces = [(sx, 0.0, sx + surface_width_m, h, draw(st.floats(0.02, 0.3)))]
+    return dict(width_m=w, height_m=h, obstacles=boxes, hill=hill, ramp=ramp, surfaces=surfaces)
+
+
 def write_dem(path: Path, width_m, height_m, hill, ramp) -> None:
     """ESRI ASCII grid covering the rectangle with a margin cell (centres every DEM_CELL_M)."""
     c = DEM_CELL_M

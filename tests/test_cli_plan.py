@@ -117,7 +117,7 @@ def test_infeasible_requests_are_one_line_exit_2(tmp_path, case, message):
     else:
         scenario = write_world(tmp_path, width_m=30.0, height_m=20.0, rated_energy_Wh=0.004)
     out = tmp_path / "plan.geojson"
-    code, stdout, stderr = run_cli("plan", scenario, "-o", out, "--vertices", "200")
+    code, _stdout, stderr = run_cli("plan", scenario, "-o", out, "--vertices", "200")
     assert code == 2
     assert message in stderr and len(stderr.strip().splitlines()) == 1
     assert not out.exists()

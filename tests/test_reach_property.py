@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
-from planning_worlds import write_world
+from planning_worlds import draw_world_spec, write_world
 
 from orange_plan.context import load_context
 from orange_plan.physics.pathcost import path_energy
@@ -35,27 +35,11 @@ GRID_M = 2.0
 
 @st.composite
 def worlds(draw):
-    w = draw(st.integers(15, 25)) * 2.0
-    h = draw(st.integers(10, 20)) * 2.0
-    boxes = []
-    for _ in range(draw(st.integers(0, 3))):
-        x0 = draw(st.integers(3, int(w / 2) - 2)) * 2.0
-        y0 = draw(st.integers(0, int(h / 2) - 2)) * 2.0
-        bw, bh = draw(st.integers(1, 4)) * 2.0, draw(st.integers(1, 6)) * 2.0
-        boxes.append((x0, y0, min(x0 + bw, w - 2), min(y0 + bh, h)))
-    terrain = draw(st.sampled_from(["hill", "ramp", "flat"]))
-    hill = ramp = None
-    if terrain == "hill":
-        hill = (draw(st.floats(0, w)), draw(st.floats(0, h)), draw(st.floats(1, 8)),
-                draw(st.floats(3, 10)))
-    elif terrain == "ramp":
-        ramp = draw(st.floats(-0.15, 0.15))
-    sx = draw(st.integers(0, int(w / 2) - 1)) * 2.0
-    surfaces = [(sx, 0.0, sx + 10.0, h, draw(st.floats(0.02, 0.3)))]
+    spec = draw_world_spec(draw)
+    w, h = spec["width_m"], spec["height_m"]
     goals = draw(st.lists(st.tuples(st.integers(0, int(w / 2)), st.integers(0, int(h / 2))),
                           min_size=4, max_size=8, unique=True))
-    return dict(width_m=w, height_m=h, obstacles=boxes, hill=hill, ramp=ramp or 0.0,
-                surfaces=surfaces), [(GRID_M * i, GRID_M * j) for i, j in goals]
+    return spec, [(GRID_M * i, GRID_M * j) for i, j in goals]
 
 
 @pytest.mark.timeout(120)

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
-from planning_worlds import write_world
+from planning_worlds import draw_world_spec, write_world
 
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
@@ -32,29 +32,13 @@ from orange_plan.planning.tour import plan_tour
 
 @st.composite
 def worlds(draw):
-    w = draw(st.integers(12, 22)) * 2.0
-    h = draw(st.integers(8, 16)) * 2.0
-    boxes = []
-    for _ in range(draw(st.integers(0, 3))):
-        x0 = draw(st.integers(3, int(w / 2) - 2)) * 2.0
-        y0 = draw(st.integers(0, int(h / 2) - 2)) * 2.0
-        bw, bh = draw(st.integers(1, 3)) * 2.0, draw(st.integers(1, 5)) * 2.0
-        boxes.append((x0, y0, min(x0 + bw, w - 2), min(y0 + bh, h)))
-    terrain = draw(st.sampled_from(["hill", "ramp", "flat"]))
-    hill, ramp = None, 0.0
-    if terrain == "hill":
-        hill = (draw(st.floats(0, w)), draw(st.floats(0, h)), draw(st.floats(1, 6)),
-                draw(st.floats(3, 10)))
-    elif terrain == "ramp":
-        ramp = draw(st.floats(-0.12, 0.12))
-    sx = draw(st.integers(0, int(w / 2) - 1)) * 2.0
-    surfaces = [(sx, 0.0, sx + 8.0, h, draw(st.floats(0.02, 0.3)))]
+    spec = draw_world_spec(draw, width_cells=(12, 22), height_cells=(8, 16), box_cells=(3, 5),
+                           hill_height_m=6.0, ramp_max=0.12, surface_width_m=8.0)
     reserve = draw(st.sampled_from([{"fraction": 0.1}, {"confidence": 0.95},
                                     {"energy_J": 200.0}]))
     # Batteries from "barely leaves home" to "covers everything".
     rated = draw(st.floats(0.08, 1.5))
-    return dict(width_m=w, height_m=h, obstacles=boxes, hill=hill, ramp=ramp,
-                surfaces=surfaces, reserve=reserve, rated_energy_Wh=rated)
+    return dict(spec, reserve=reserve, rated_energy_Wh=rated)
 
 
 @pytest.mark.timeout(240)

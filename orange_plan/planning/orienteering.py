@@ -259,5 +259,5 @@ def or_opt(p: Orienteering, nodes):
     d, gap = divmod(int(best[k]), n + 1)
     rest = nodes[:k] + nodes[k + 1:]
     pos = gap - 1 if gap > k else gap
-    cand = rest[:pos] + [(nodes[k][0], d)] + rest[pos:]
+    cand = [*rest[:pos], (nodes[k][0], d), *rest[pos:]]
     return cand if _accept(p, nodes, cand) else None

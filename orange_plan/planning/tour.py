@@ -46,7 +46,6 @@ from orange_plan.planning.coverage import (
     coverage_grid,
     footprint,
 )
-from orange_plan.planning.paths import clean_polyline
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import (
     Reachability,
