@@ -49,7 +49,8 @@ def test_goal_answers_are_exact_round_trips(world, reach):
     c = reach.exact
     for g in goals:
         assert g.valid and g.name in "ab"
-        e = path_energy(world.model, world.world, g.path_xy_m, c.speed_mps, c.duty_cycle)
+        e = path_energy(world.model, world.world, g.path_xy_m, c.speed_mps, c.duty_cycle,
+                        c.sensor_rate_Hz, c.accel_max_mps2)
         assert g.energy_to_goal_J + g.energy_goal_to_home_J == pytest.approx(e.total_J, rel=1e-12)
         assert g.reserve_J > 0  # confidence reserve from the model's parameter variance
         assert g.margin_J == pytest.approx(reach.energy_available_J - e.total_J - g.reserve_J)

@@ -53,7 +53,10 @@ def test_time_limit_binds_and_accel_limit_holds(ctx):
     free = solver.solve(speed_problem(ctx, pieces), ctx.world)
     limited = solver.solve(speed_problem(ctx, pieces, time_limit_s=0.8 * free.duration_s),
                            ctx.world)
-    assert limited.duration_s == pytest.approx(0.8 * free.duration_s, rel=1e-3)
+    # the limit holds for the driven profile (ramps, stops), and binds
+    assert limited.duration_s <= 0.8 * free.duration_s
+    assert limited.duration_s == pytest.approx(0.8 * free.duration_s, rel=0.01)
+    assert limited.pieces_duration_s < limited.duration_s  # the NLP's limit was tightened
     assert limited.energy_J > free.energy_J
     v2 = limited.speed_mps ** 2
     assert np.all(np.abs(np.diff(v2)) <= 2 * 0.5 * pieces.length_m[:-1] + 1e-6)
@@ -63,11 +66,13 @@ def test_min_time_within_energy_budget(ctx):
     pieces = cut_path(ctx.world, STRAIGHT, 20)
     solver = SpeedSolver(ctx.model)
     best = solver.solve(speed_problem(ctx, pieces), ctx.world)
-    fast = solver.solve(speed_problem(ctx, pieces, objective="time",
-                                      energy_budget_J=1.05 * best.pieces_energy_J), ctx.world)
+    budget = 1.05 * best.energy_J
+    fast = solver.solve(speed_problem(ctx, pieces, objective="time", energy_budget_J=budget),
+                        ctx.world)
     assert fast.duration_s < best.duration_s
-    assert fast.pieces_energy_J <= 1.05 * best.pieces_energy_J * (1 + 1e-6)
-    assert fast.energy_J == pytest.approx(fast.pieces_energy_J, rel=0.01)  # finer sub-steps
+    # the budget holds for the driven profile (ramps and stops draw more than the NLP's pieces)
+    assert fast.energy_J <= budget
+    assert fast.pieces_energy_J < fast.energy_J
 
 
 def test_cut_path_keeps_corners_and_count(ctx):

@@ -125,8 +125,11 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None):
     common = (ctx.model, ctx.world)
     rest = (float(speed_mps), ctx.duty_cycle, ctx.sensor_rate_Hz)
     gradient = sc.mission.reserve.kind == "confidence"
-    return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient),
-            EdgeCostContext(*common, ctx.world, *rest, step_m=None, with_gradient=gradient))
+    accel = sc.robot.accel_max_mps2
+    return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient,
+                            accel_max_mps2=accel),
+            EdgeCostContext(*common, ctx.world, *rest, step_m=None, with_gradient=gradient,
+                            accel_max_mps2=accel))
 
 
 def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
@@ -302,7 +305,7 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     trip = clean_polyline(dedupe(np.vstack([out, back])))
     c = reach.exact
     cumulative = path_energy(c.model, c.world, trip, c.speed_mps, c.duty_cycle,
-                             c.sensor_rate_Hz).cumulative_J
+                             c.sensor_rate_Hz, c.accel_max_mps2).cumulative_J
     # Turning at the goal is charged to the way back (path_energy charges a vertex's turn to
     # the segment leaving it), so the two legs add up to the round trip exactly.
     to_goal = float(cumulative[len(out) - 1])
