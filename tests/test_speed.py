@@ -7,7 +7,7 @@ import pytest
 from planning_worlds import write_world
 
 from orange_plan.context import load_context
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, PlanningError
 from orange_plan.physics.state import MotionState
 from orange_plan.planning.speed import SpeedSolver, cut_path, speed_problem
 
@@ -60,6 +60,17 @@ def test_time_limit_binds_and_accel_limit_holds(ctx):
     assert limited.energy_J > free.energy_J
     v2 = limited.speed_mps ** 2
     assert np.all(np.abs(np.diff(v2)) <= 2 * 0.5 * pieces.length_m[:-1] + 1e-6)
+
+
+def test_time_limit_the_driven_profile_cannot_keep_is_refused(ctx):
+    """Just above the time at v_max without ramps or stops: the NLP meets it, the robot
+    (from and to rest, stopping on its duty cycle) cannot, and the answer says so."""
+    pieces = cut_path(ctx.world, STRAIGHT, 20)
+    r = ctx.scenario.robot
+    fastest_s = float(np.sum(pieces.length_m)) / (r.v_max_mps * ctx.duty_cycle)
+    problem = speed_problem(ctx, pieces, time_limit_s=1.001 * fastest_s)
+    with pytest.raises(PlanningError, match=r"mission time \d+ s exceeds mission.time_limit_s"):
+        SpeedSolver(ctx.model).solve(problem, ctx.world)
 
 
 def test_min_time_within_energy_budget(ctx):
