@@ -3,7 +3,9 @@
 Terrain that varies along a segment is integrated in sub-steps no longer than 0.5 m or half
 an elevation cell, with the no-recovery ``max(0, .)`` applied per sub-step; turning energy is
 charged at every interior vertex. Everything is vectorised over many segments at once (the
-planner weights a whole roadmap in one call).
+planner weights a whole roadmap in one call). ``path_energy`` with the robot's acceleration
+limit gives instead the energy of the speed profile the robot drives (``physics.profile``),
+which is what planners report.
 """
 
 from __future__ import annotations
@@ -58,9 +60,13 @@ class Steps:
     def _safe_length_m(self) -> np.ndarray:
         return np.where(self.length_m > 0, self.length_m, 1.0)
 
+    def per_step(self, per_segment) -> np.ndarray:
+        """A per-segment (or scalar) value repeated onto every sub-step of its segment."""
+        return np.broadcast_to(np.asarray(per_segment, float), (self.n_segments,))[self.segment]
+
     def state(self, speed_mps, wind_xy_mps=(0.0, 0.0), sensor_rate_Hz=0.0) -> MotionState:
         """MotionState of every sub-step at per-segment (or scalar) speeds."""
-        speed = np.broadcast_to(np.asarray(speed_mps, float), (self.n_segments,))[self.segment]
+        speed = self.per_step(speed_mps)
         return MotionState(
             speed_mps=speed,
             cos_t=self.cos_t,
@@ -260,9 +266,8 @@ def path_energy(
         return PathEnergy(seg, cumulative, time)
     from orange_plan.physics.profile import profile_energy  # profile imports this module
 
-    speed = np.broadcast_to(np.asarray(speed_mps, float), (steps.n_segments,))[steps.segment]
-    drive = profile_energy(model, steps, speed, accel_max_mps2, duty_cycle, world.wind_xy_mps,
-                           sensor_rate_Hz)
+    drive = profile_energy(model, steps, steps.per_step(speed_mps), accel_max_mps2, duty_cycle,
+                           world.wind_xy_mps, sensor_rate_Hz)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p, axis=0).T))]
     cumulative, time = drive.at_arclength(vertex_s)
     cumulative[-1], time[-1] = drive.total_J, drive.duration_s  # the final wait included

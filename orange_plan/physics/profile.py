@@ -63,6 +63,9 @@ class Driver:
     ``clip(target - v, -a dt, a dt)`` with target the sub-step's cruise speed, 0 while
     stopping, and near the end ``sqrt(2 a remaining) - a dt`` (brake to rest on arrival; the
     ``- a dt`` is one step of anticipation, as the speed follows the cap with a step's lag).
+    Stops: after ``stop_every_s`` of moving, brake to rest and wait until ``t >= moving / D``;
+    at the end of a single run the same wait once at rest, so the run's moving time / mission
+    time is D (SPEC §7's mission time, moving time / D).
     """
 
     def __init__(self, edges_m, step_speed, step_cos, accel_max, dt, duty,

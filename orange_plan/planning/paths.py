@@ -38,7 +38,8 @@ class PlannedPath:
     Attributes
     ----------
     xy_m : vertices, shape (n, 2) [m]
-    energy_J : battery energy of the whole path (path_energy, SPEC §7) [J]
+    energy_J : battery energy of the whole path (path_energy: SPEC §7 sub-steps, and the
+        driven speed profile when the cost carries an acceleration limit) [J]
     length_m : horizontal length [m]
     duration_s : mission time, stops included [s]
     speed_mps : cruise speed [m/s]
@@ -85,8 +86,7 @@ def path_gradient(cost: EdgeCostContext, xy) -> np.ndarray:
     steps = subdivide(cost.world, p[:-1], p[1:])
     if cost.accel_max_mps2 is not None and np.any(steps.horiz_m > 0):
         # the energy path_energy reports for this cost is the driven profile's
-        speed = np.broadcast_to(np.asarray(cost.speed_mps, float), (steps.n_segments,))
-        return profile_gradient(model, steps, speed[steps.segment], cost.accel_max_mps2,
+        return profile_gradient(model, steps, steps.per_step(cost.speed_mps), cost.accel_max_mps2,
                                 cost.duty_cycle, cost.world.wind_xy_mps, cost.sensor_rate_Hz)
     jac = segments_energy_jacobian(model, cost.world, steps, cost.speed_mps, cost.duty_cycle,
                                    cost.sensor_rate_Hz).sum(axis=0)
