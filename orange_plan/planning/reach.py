@@ -9,10 +9,10 @@ Problem statement (kept apart from how it is solved): a goal ``g`` is feasible f
 
 where ``E`` and ``T`` are the battery energy and mission time of the speed profile the robot
 drives at the cruise speed (``physics.profile``: the SPEC §7 energy plus ramps and stops) and
-the reserve follows the scenario's ``mission.reserve``. How it is solved: an energy roadmap (``roadmap``), Dijkstra
-fields from the start and to home, each goal joined to its nearest roadmap vertices by
-collision-checked straight segments; the chosen round trip is then re-evaluated exactly with
-``path_energy`` and that exact energy decides feasibility. So a goal called feasible always has
+the reserve follows the scenario's ``mission.reserve``. How it is solved: an energy roadmap
+(``roadmap``), Dijkstra fields from the start and to home, each goal joined to its nearest
+roadmap vertices by collision-checked straight segments; the chosen round trip is then
+re-evaluated exactly with ``path_energy`` and that exact energy and time decide feasibility. So a goal called feasible always has
 a drivable round trip whose energy, as reported, fits (the roadmap may miss a cheaper one:
 answers are conservative).
 """
