@@ -21,7 +21,7 @@ def box(x0, y0, x1, y1):
 
 def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surfaces=(),
                 hill=None, ramp=0.0, home=(2.0, 2.0), rated_energy_Wh=1.0,
-                reserve=None, turn=0.0, drag=0.05, name="world") -> Path:
+                reserve=None, turn=0.0, drag=0.05, name="world", time_limit_s=None) -> Path:
     """Write map + DEM + scenario; ``hill`` = (cx, cy, height_m, sigma_m), ``ramp`` = dz/dx."""
     features = [
         {"type": "Feature", "properties": {"kind": "boundary"},
@@ -56,6 +56,8 @@ def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surface
                     "reserve": reserve or {"fraction": 0.1}},
         "environment": {"wind_speed_mps": 0.0, "wind_from_deg": 0.0},
     }
+    if time_limit_s is not None:
+        scenario["mission"]["time_limit_s"] = time_limit_s
     path = folder / f"{name}.toml"
     path.write_text(tomli_w.dumps(scenario), encoding="utf-8")
     return path

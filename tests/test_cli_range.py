@@ -123,3 +123,17 @@ def test_range_table_for_people(scenario_path):
 def test_range_help():
     code, out, _ = run_cli("range", "--help")
     assert code == 0 and "scenario" in out.lower() and "--json" in out
+
+
+def test_range_honours_the_time_limit_in_json_and_text(tmp_path):
+    path = write_scenario(tmp_path, set={"mission.time_limit_s": 60.0})
+    code, out, err = run_cli("range", path, "--json")
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["time_limit_s"] == 60.0 and data["within_time_limit"] is False
+    assert "exceeds mission.time_limit_s = 60 s" in data["reason"]
+    assert data["time_limited"]["mission_time_s"] <= 60.0 * (1 + 1e-9)
+    assert data["generalised"]["time_limited"]["mission_time_s"] <= 60.0 * (1 + 1e-9)
+    code, out, _ = run_cli("range", path)
+    assert code == 0 and "exceeds mission.time_limit_s = 60 s" in out
+    assert "d_max within time limit" in out

@@ -65,6 +65,7 @@ def test_png_and_human_output(scenario, goals_csv, tmp_path):
     (["--from", "12,10"], "--from (12, 10) m is outside the boundary or inside an obstacle"),
     (["--from", "abc"], "--from must be X,Y"),
     (["--energy-used-J", "-5"], "--energy-used-J = -5 must be in"),
+    (["--time-used-s", "-5"], "--time-used-s = -5 must be a finite time >= 0 s"),
     (["--goals", "missing.csv"], "goals file not found"),
     (["--png", "x.jpg"], "must end in .png"),
 ])
@@ -72,3 +73,30 @@ def test_bad_input_one_line_exit_2(scenario, args, text):
     code, out, err = run_cli("reach", scenario, "--vertices", "50", *args)
     assert code == 2 and out == ""
     assert text in err and len(err.strip().splitlines()) == 1
+
+
+def test_json_gives_each_feasible_goal_a_drivable_route(scenario, goals_csv):
+    code, out, err = run_cli("reach", scenario, "--goals", goals_csv, "--vertices", "200",
+                             "--json")
+    assert code == 0, err
+    far, in_box, _ = json.loads(out)["goals"]
+    assert far["feasible"]
+    path = far["path_xy_m"]
+    assert len(path) >= 2 and path[0] == path[-1] == json.loads(out)["home_xy_m"]
+    assert [35.0, 25.0] in path
+    assert far["speed_mps"] == [json.loads(out)["speed_mps"]] * len(path)
+    assert "path_xy_m" not in in_box and "speed_mps" not in in_box
+
+
+def test_time_limit_reason_in_json_and_text(tmp_path, goals_csv):
+    scenario = write_world(tmp_path, obstacles=[(10, 5, 14, 25)], time_limit_s=30.0)
+    code, out, err = run_cli("reach", scenario, "--goals", goals_csv, "--vertices", "200",
+                             "--json")
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["time_limit_s"] == 30.0
+    far = report["goals"][0]
+    assert not far["feasible"] and far["duration_s"] > 30.0
+    assert "exceeds mission.time_limit_s = 30 s" in far["reason"]
+    code, out, _ = run_cli("reach", scenario, "--goals", goals_csv, "--vertices", "200")
+    assert code == 0 and "mission.time_limit_s" in out

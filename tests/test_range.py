@@ -14,7 +14,12 @@ from hypothesis import strategies as st
 
 from orange_plan.context import load_context
 from orange_plan.physics.builder import build_model
-from orange_plan.physics.range import generalised_range, radial_probe_paths, simplified_range
+from orange_plan.physics.range import (
+    generalised_range,
+    radial_probe_paths,
+    range_report,
+    simplified_range,
+)
 from orange_plan.scenario import scenario_from_dict
 
 G = 9.81
@@ -176,3 +181,26 @@ def test_generalised_range_refuses_a_model_that_draws_nothing(tmp_path):
     free = EnergyModel([TERMS["ancillary"]], {"ancillary_W": 0.0}, omega=0.8)
     with pytest.raises(InputError, match=r"energy per metre is 0 J/m \(not positive\)"):
         generalised_range(ctx.scenario, free, ctx.world)
+
+
+def test_time_limit_bounds_the_range(tmp_path):
+    """A 60 s mission cannot take the robot further than v_max D 60 s, whatever the battery:
+    the SPEC §7 figures stay, flagged, with the range the limit allows."""
+    ctx = load_context(write_scenario(tmp_path, set={"mission.time_limit_s": 60.0}))
+    free = simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr)
+    assert free.mission_time_s > 60.0 and free.within_time_limit and free.reason is None
+    report = range_report(ctx)
+    v_max, duty = ctx.scenario.robot.v_max_mps, ctx.duty_cycle
+    for r in (report.simplified, report.generalised):
+        assert not r.within_time_limit and "exceeds mission.time_limit_s = 60 s" in r.reason
+        assert r.time_limited.mission_time_s <= 60.0 * (1 + 1e-9)
+        # time binds before energy at every speed here, so the fastest speed goes furthest
+        assert r.time_limited.v_opt_mps == pytest.approx(v_max)
+        assert r.time_limited.d_max_m == pytest.approx(60.0 * v_max * duty)
+    assert report.simplified.d_max_m == pytest.approx(free.d_max_m)  # SPEC §7 Eq. 6 unchanged
+
+
+def test_a_loose_time_limit_changes_nothing(tmp_path):
+    ctx = load_context(write_scenario(tmp_path, set={"mission.time_limit_s": 1e9}))
+    free = simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr)
+    assert range_report(ctx).simplified == free

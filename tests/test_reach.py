@@ -49,7 +49,8 @@ def test_goal_answers_are_exact_round_trips(world, reach):
     c = reach.exact
     for g in goals:
         assert g.valid and g.name in "ab"
-        e = path_energy(world.model, world.world, g.path_xy_m, c.speed_mps, c.duty_cycle)
+        e = path_energy(world.model, world.world, g.path_xy_m, c.speed_mps, c.duty_cycle,
+                        c.sensor_rate_Hz, c.accel_max_mps2)
         assert g.energy_to_goal_J + g.energy_goal_to_home_J == pytest.approx(e.total_J, rel=1e-12)
         assert g.reserve_J > 0  # confidence reserve from the model's parameter variance
         assert g.margin_J == pytest.approx(reach.energy_available_J - e.total_J - g.reserve_J)
@@ -126,3 +127,21 @@ def test_bad_goals(tmp_path, text, match):
         load_goals(f)
     with pytest.raises(InputError, match="not found"):
         load_goals(tmp_path / "none.csv")
+
+
+def test_time_limit_makes_far_goals_infeasible_with_the_reason(tmp_path):
+    ctx = load_context(write_world(tmp_path, obstacles=[(10, 5, 14, 25)], time_limit_s=40.0))
+    r = prepare_reach(ctx, n_vertices=200, seed=2)
+    near, far = query_goals(r, [[6.0, 3.0], [35.0, 25.0]])
+    assert near.feasible and near.reason is None and near.duration_s <= 40.0
+    assert far.margin_J > 0  # the energy would do ...
+    assert not far.feasible and far.duration_s > 40.0  # ... the time does not
+    assert far.reason == f"mission time {far.duration_s:,.0f} s exceeds mission.time_limit_s = 40 s"
+    c = r.exact
+    trip = path_energy(ctx.model, ctx.world, far.path_xy_m, c.speed_mps, c.duty_cycle,
+                       c.sensor_rate_Hz, c.accel_max_mps2)
+    assert far.duration_s == pytest.approx(trip.duration_s)
+    # time already spent counts against the limit too
+    later = prepare_reach(ctx, n_vertices=200, seed=2, time_used_s=40.0 - near.duration_s + 1.0)
+    (again,) = query_goals(later, [[6.0, 3.0]])
+    assert not again.feasible and "exceeds mission.time_limit_s" in again.reason

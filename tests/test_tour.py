@@ -40,7 +40,7 @@ def test_bitstar_refinement_only_keeps_cheaper_legs(hilly):
 
     def energy(s, ids):
         return path_energy(ex.model, ex.world, s.roadmap_xy_m[ids], ex.speed_mps,
-                           ex.duty_cycle).total_J
+                           ex.duty_cycle, accel_max_mps2=ex.accel_max_mps2).total_J
 
     before = energy(setup, walk_vertices(setup, tour.nodes))
     refined, ids, n = refine_legs(setup, tour.nodes, seconds=0.5, max_legs=3, seed=1)

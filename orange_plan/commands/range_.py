@@ -19,6 +19,8 @@ def range_cmd(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
         print_json(report.to_dict())
         return
     out.print(_range_table(report))
+    if report.simplified.reason:
+        out.print(f"[yellow]{report.simplified.reason}[/]")
 
 
 def _range_table(report) -> Table:
@@ -31,10 +33,11 @@ def _range_table(report) -> Table:
     rows = [
         ("d_max", f"{s.d_max_m:,.1f} m", f"simplified ORangE, Eq. 6, flat ground crr={report.crr:g}"),
         ("v_opt", f"{s.v_opt_mps:.3f} m/s", "speed in \\[v_min, v_max] maximising range"),
-        ("mission time", f"{s.mission_time_s / 60:,.1f} min", "stops included (duty cycle)"),
+        ("mission time", f"{s.mission_time_s / 60:,.1f} min", _time_note(report)),
         ("energy per metre", f"{s.energy_per_m_J:,.2f} J/m", ""),
         ("d_max (generalised)", f"{g.d_max_m:,.1f} m",
          f"offline Eq. 11 over the map at {g.v_opt_mps:.3f} m/s (wind, grades, surfaces)"),
+        *_time_limited_rows(s, g),
         ("", "", ""),
         ("rated energy", f"{e.rated_J / 1e3:,.2f} kJ", "E_O"),
         ("capacity decay", f"{e.decay_J / 1e3:,.2f} kJ", "Eq. 3: cycles and age"),
@@ -48,6 +51,28 @@ def _range_table(report) -> Table:
         ("    mechanical loss eta_3", f"{e.mechanical_loss_eta3_J / 1e3:,.2f} kJ", ""),
         ("    mechanical work", f"{e.mechanical_work_J / 1e3:,.2f} kJ", "rolling + drag (ME)"),
     ]
+
     for row in rows:
         table.add_row(*row)
     return table
+
+
+def _time_note(report) -> str:
+    note = "stops included (duty cycle)"
+    if report.time_limit_s is None:
+        return note
+    if report.simplified.within_time_limit:
+        return f"{note}; within mission.time_limit_s = {report.time_limit_s:g} s"
+    return f"[red]exceeds mission.time_limit_s = {report.time_limit_s:g} s[/]"
+
+
+def _time_limited_rows(simplified, generalised) -> list[tuple[str, str, str]]:
+    """Rows for the ranges the time limit allows (none when both fit)."""
+    rows = []
+    for label, r in (("d_max within time limit", simplified),
+                     ("d_max (generalised) within time limit", generalised)):
+        if r.time_limited is not None:
+            t = r.time_limited
+            rows.append((label, f"{t.d_max_m:,.1f} m", f"at {t.v_opt_mps:.3f} m/s, mission time "
+                         f"{t.mission_time_s / 60:,.1f} min"))
+    return rows

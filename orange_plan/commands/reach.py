@@ -48,6 +48,9 @@ def reach_cmd(
         "--from", help="Robot position X,Y in metres (default: home).")] = None,
     energy_used_J: Annotated[float, typer.Option(
         "--energy-used-J", help="Battery energy already used [J].")] = 0.0,
+    time_used_s: Annotated[float, typer.Option(
+        "--time-used-s", help="Mission time already spent [s] (counts against "
+        "mission.time_limit_s).")] = 0.0,
     goals: Annotated[Path | None, typer.Option(
         "--goals", help="CSV with columns x_m, y_m (optional name).")] = None,
     png: Annotated[Path | None, typer.Option(
@@ -69,7 +72,8 @@ def reach_cmd(
         step("loading scenario")
         ctx = load_context(scenario)
         step(f"building the energy roadmap ({vertices} vertices)")
-        reach = prepare_reach(ctx, start, energy_used_J, n_vertices=vertices, seed=seed)
+        reach = prepare_reach(ctx, start, energy_used_J, n_vertices=vertices, seed=seed,
+                              time_used_s=time_used_s)
         home = home_status(reach)
         step("querying goals")
         results = [] if goal_set is None else query_goals(reach, goal_set.xy_m, goal_set.names)
@@ -91,6 +95,10 @@ def reach_cmd(
         "reserve_J": home.reserve_J,
         "home_reachable": bool(home.reachable),
         "energy_to_home_J": home.energy_to_home_J,
+        "duration_to_home_s": home.duration_s,
+        "home_reason": home.reason,
+        "time_limit_s": reach.time_limit_s,
+        "time_used_s": reach.time_used_s,
         "speed_mps": reach.exact.speed_mps,
         "goals": [g.to_dict() for g in results],
     }
@@ -113,16 +121,20 @@ def _print_report(name: str, report: dict, png) -> None:
     out.print(f"[bold]{name}[/]: from ({report['from_xy_m'][0]:g}, {report['from_xy_m'][1]:g}) m, "
               f"{report['energy_used_J'] / 1e3:,.2f} kJ used of "
               f"{report['energy_available_J'] / 1e3:,.2f} kJ, cruise {report['speed_mps']:.2f} m/s")
+    if report["time_limit_s"] is not None:
+        out.print(f"mission.time_limit_s = {report['time_limit_s']:g} s, "
+                  f"{report['time_used_s']:g} s used")
     if report["home_reachable"]:
         out.print(f"home reachable: {_kj(report['energy_to_home_J'])} kJ to home "
                   f"+ {_kj(report['reserve_J'])} kJ reserve")
     else:
-        out.print("[red]home NOT reachable[/] from the start with the reserve")
+        out.print(f"[red]home NOT reachable[/] from the start: {report['home_reason']}")
     if report["goals"]:
         table = Table(show_header=True, header_style="bold")
         for col in ("goal", "x m", "y m", "feasible", "to goal kJ", "home kJ", "margin kJ",
                     "note"):
-            table.add_column(col, justify="left" if col in ("goal", "note") else "right")
+            table.add_column(col, justify="left" if col in ("goal", "note") else "right",
+                             overflow="fold")  # a reason names a key; never cut it
         for i, g in enumerate(report["goals"]):
             table.add_row(g.get("name") or str(i), f"{g['x_m']:g}", f"{g['y_m']:g}",
                           "yes" if g["feasible"] else "[red]no[/]", _kj(g["energy_to_goal_J"]),

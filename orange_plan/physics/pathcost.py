@@ -3,7 +3,9 @@
 Terrain that varies along a segment is integrated in sub-steps no longer than 0.5 m or half
 an elevation cell, with the no-recovery ``max(0, .)`` applied per sub-step; turning energy is
 charged at every interior vertex. Everything is vectorised over many segments at once (the
-planner weights a whole roadmap in one call).
+planner weights a whole roadmap in one call). ``path_energy`` with the robot's acceleration
+limit gives instead the energy of the speed profile the robot drives (``physics.profile``),
+which is what planners report.
 """
 
 from __future__ import annotations
@@ -58,9 +60,13 @@ class Steps:
     def _safe_length_m(self) -> np.ndarray:
         return np.where(self.length_m > 0, self.length_m, 1.0)
 
+    def per_step(self, per_segment) -> np.ndarray:
+        """A per-segment (or scalar) value repeated onto every sub-step of its segment."""
+        return np.broadcast_to(np.asarray(per_segment, float), (self.n_segments,))[self.segment]
+
     def state(self, speed_mps, wind_xy_mps=(0.0, 0.0), sensor_rate_Hz=0.0) -> MotionState:
         """MotionState of every sub-step at per-segment (or scalar) speeds."""
-        speed = np.broadcast_to(np.asarray(speed_mps, float), (self.n_segments,))[self.segment]
+        speed = self.per_step(speed_mps)
         return MotionState(
             speed_mps=speed,
             cos_t=self.cos_t,
@@ -179,9 +185,16 @@ class PathEnergy:
 
     Attributes
     ----------
-    segments : per-segment energies (turning charged to the segment leaving the vertex)
-    cumulative_J : energy used on arrival at each vertex, shape (n_vertices,) [J]
+    segments : SPEC §7 per-segment energies at cruise speed throughout (turning charged to the
+        segment leaving the vertex): the reference figure
+    cumulative_J : energy used on arrival at each vertex, shape (n_vertices,) [J]; at the last
+        vertex the whole path's energy
     cumulative_time_s : mission time at each vertex, shape (n_vertices,) [s]
+
+    With a speed profile (``path_energy(..., accel_max_mps2=a)``) the cumulative figures are
+    those of the driven profile: ramps at ``a``, duty-cycle stops, at rest at both ends, the
+    duty cycle waited out at the end (``physics.profile``); without one they are the SPEC §7
+    sums of ``segments``.
     """
 
     segments: SegmentEnergy
@@ -196,6 +209,17 @@ class PathEnergy:
     def duration_s(self) -> float:
         return float(self.cumulative_time_s[-1])
 
+    @property
+    def reference_J(self) -> float:
+        """The SPEC §7 figure: cruise speed throughout, stops through the duty cycle [J]."""
+        return float(np.sum(self.segments.total_J))
+
+    @property
+    def profile_J(self) -> float:
+        """Energy of the speed profile on top of the SPEC §7 figure (0 without a profile) [J]:
+        the longer moving time of speeding up and slowing down, inertia and regen if modelled."""
+        return self.total_J - self.reference_J
+
 
 def path_energy(
     model: EnergyModel,
@@ -204,19 +228,49 @@ def path_energy(
     speed_mps,
     duty_cycle: float,
     sensor_rate_Hz: float = 0.0,
+    accel_max_mps2: float | None = None,
 ) -> PathEnergy:
-    """Energy of a polyline at per-segment (or scalar) speeds, turning at interior vertices."""
+    """Energy of a polyline at per-segment (or scalar) speeds, turning at interior vertices.
+
+    Parameters
+    ----------
+    model : the energy model; world : the World
+    path_xy : vertices (n, 2) [m]
+    speed_mps : cruise speed per segment (n - 1,) or scalar [m/s]
+    duty_cycle : D [-]; sensor_rate_Hz : [Hz]
+    accel_max_mps2 : the robot's acceleration limit [m/s^2]. Given, the energy is that of the
+        speed profile the robot drives (``physics.profile``: what the simulator draws on this
+        path under this model); None gives the SPEC §7 reference figure, cruise speed
+        throughout. Planners pass it: a plan must not be optimistic.
+
+    Notes
+    -----
+    Reference (SPEC §7): per sub-step ``P_anc L / (v D) + max(0, F) L``, plus
+    ``turn_J_per_rad |heading change|`` per interior vertex. Profile:
+    ``sum_k P(state_k) dt`` over the driven samples, ``P`` the model's time-domain power.
+    """
     p = np.asarray(path_xy, float)
     if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2:
         raise InputError(f"a path needs at least two (x, y) vertices, got shape {p.shape}")
-    seg = segments_energy(model, world, p[:-1], p[1:], speed_mps, duty_cycle, sensor_rate_Hz)
+    steps = subdivide(world, p[:-1], p[1:])
+    seg = segments_energy(model, world, None, None, speed_mps, duty_cycle, sensor_rate_Hz,
+                          steps=steps)
     turning = np.zeros(len(p) - 1)
     if len(p) > 2:
         turning[1:] = model.turning_energy_J(heading_changes_rad(p))
     seg = SegmentEnergy(seg.ancillary_J, seg.traversal_J, turning, seg.moving_time_s,
                         seg.mission_time_s)
-    cumulative = np.r_[0.0, np.cumsum(seg.total_J)]
-    time = np.r_[0.0, np.cumsum(seg.mission_time_s)]
+    if accel_max_mps2 is None or not np.any(steps.horiz_m > 0):
+        cumulative = np.r_[0.0, np.cumsum(seg.total_J)]
+        time = np.r_[0.0, np.cumsum(seg.mission_time_s)]
+        return PathEnergy(seg, cumulative, time)
+    from orange_plan.physics.profile import profile_energy  # profile imports this module
+
+    drive = profile_energy(model, steps, steps.per_step(speed_mps), accel_max_mps2, duty_cycle,
+                           world.wind_xy_mps, sensor_rate_Hz)
+    vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p, axis=0).T))]
+    cumulative, time = drive.at_arclength(vertex_s)
+    cumulative[-1], time[-1] = drive.total_J, drive.duration_s  # the final wait included
     return PathEnergy(seg, cumulative, time)
 
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from orange_plan.errors import InputError
+from orange_plan.mission import check_time_limit
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
 from orange_plan.physics.state import MotionState
@@ -45,6 +46,10 @@ class RangeResult:
     energy_per_m_J : battery energy per metre at v_opt [J/m]
     mission_time_s : mission time to cover d_max, stops included [s]
     method : "simplified (Eq. 6)" or "generalised offline (Eq. 11)"
+    within_time_limit : the mission time keeps ``mission.time_limit_s`` (``check_time_limit``)
+    reason : why not (None when within)
+    time_limited : when not within, the range the time limit allows (the best speed for
+        ``min(E_avail / e(v), T v D)``); else None
     """
 
     d_max_m: float
@@ -52,13 +57,17 @@ class RangeResult:
     energy_per_m_J: float
     mission_time_s: float
     method: str
+    within_time_limit: bool = True
+    reason: str | None = None
+    time_limited: RangeResult | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
 def best_speed(cost_per_m, v_min_mps: float, v_max_mps: float) -> float:
-    """Speed in [v_min, v_max] minimising a per-metre energy cost (bounded Brent + ends) [m/s]."""
+    """Speed in [v_min, v_max] minimising ``cost_per_m`` (a per-metre energy cost, or any
+    unimodal function of speed) by bounded Brent, the two ends also tried [m/s]."""
     if v_min_mps == v_max_mps:
         return float(v_min_mps)
     candidates = [v_min_mps, v_max_mps]
@@ -74,11 +83,39 @@ def flat_state(speed_mps, crr: float, sensor_rate_Hz: float) -> MotionState:
     return MotionState(speed_mps=speed_mps, crr=crr, sensor_rate_Hz=sensor_rate_Hz)
 
 
-def simplified_range(scenario, model: EnergyModel, crr: float) -> RangeResult:
+def within_time_limit(result: RangeResult, cost_per_m, scenario,
+                      time_limit_s: float | None) -> RangeResult:
+    """``result`` checked against ``time_limit_s`` (``mission.check_time_limit``); when its
+    mission time exceeds the limit, with the reason and the range the limit allows.
+
+    Notes
+    -----
+    Under a limit T the distance at speed v is ``min(E_avail / e(v), T v D)`` (energy or time
+    runs out first); it is maximised over ``[v_min, v_max]``: a faster speed than the energy
+    optimum, up to where both run out together, or v_max.
+    """
+    check = check_time_limit(result.mission_time_s, time_limit_s)
+    if check.within:
+        return result
+    energy, duty = scenario.battery.usable_J, scenario.mission.duty_cycle
+
+    def distance_m(v):
+        return min(energy / cost_per_m(v), time_limit_s * v * duty)
+
+    v = best_speed(lambda v: -distance_m(v), scenario.robot.v_min_mps, scenario.robot.v_max_mps)
+    d = distance_m(v)
+    limited = RangeResult(d, v, cost_per_m(v), d / (v * duty), f"{result.method} within "
+                          f"mission.time_limit_s")
+    return replace(result, within_time_limit=False, reason=check.reason, time_limited=limited)
+
+
+def simplified_range(scenario, model: EnergyModel, crr: float,
+                     time_limit_s: float | None = None) -> RangeResult:
     """Simplified ORangE on flat ground (the paper's Eq. 6, SPEC §7).
 
     ``d_max = E_avail / (P_anc / (v D) + (crr m g + c v^2) / Omega)`` at the speed ``v_opt``
-    in ``[v_min, v_max]`` that maximises it.
+    in ``[v_min, v_max]`` that maximises it; with ``time_limit_s`` [s], see
+    ``within_time_limit``.
     """
     duty = scenario.mission.duty_cycle
     rate = scenario.ancillary.sensor_rate_Hz
@@ -91,7 +128,8 @@ def simplified_range(scenario, model: EnergyModel, crr: float) -> RangeResult:
     if cost <= 0:
         raise InputError("the model gives no energy cost per metre; range is unbounded")
     d = scenario.battery.usable_J / cost
-    return RangeResult(d, v, cost, d / (v * duty), "simplified (Eq. 6)")
+    result = RangeResult(d, v, cost, d / (v * duty), "simplified (Eq. 6)")
+    return within_time_limit(result, cost_per_m, scenario, time_limit_s)
 
 
 def breakdown(scenario, model: EnergyModel, result: RangeResult, crr: float) -> EnergyBreakdown:
@@ -148,7 +186,8 @@ def radial_probe_paths(world, n_headings: int = 16) -> list[np.ndarray]:
     return paths
 
 
-def generalised_range(scenario, model: EnergyModel, world, paths=None) -> RangeResult:
+def generalised_range(scenario, model: EnergyModel, world, paths=None,
+                      time_limit_s: float | None = None) -> RangeResult:
     """Generalised offline ORangE (Eq. 11): the path integral approximated a priori.
 
     The position-, speed- and wind-dependent forces are averaged over ``paths`` (default:
@@ -158,6 +197,7 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None) -> RangeR
     Parameters
     ----------
     paths : polylines (k, 2) in the map frame standing for the mission a priori
+    time_limit_s : mission time limit [s] (None: none); see ``within_time_limit``
     """
     paths = radial_probe_paths(world) if paths is None else paths
     if not paths:
@@ -180,7 +220,8 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None) -> RangeR
         raise InputError(f"the a-priori energy per metre is {cost:.3g} J/m (not positive): "
                          "the range is unbounded; check the ancillary power and regen")
     d = scenario.battery.usable_J / cost
-    return RangeResult(d, v, cost, d / (v * duty), "generalised offline (Eq. 11)")
+    result = RangeResult(d, v, cost, d / (v * duty), "generalised offline (Eq. 11)")
+    return within_time_limit(result, cost_per_m, scenario, time_limit_s)
 
 
 @dataclass(frozen=True)
@@ -195,6 +236,7 @@ class RangeReport:
     simplified: RangeResult
     generalised: RangeResult
     energy: EnergyBreakdown
+    time_limit_s: float | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -204,6 +246,11 @@ class RangeReport:
             "v_opt_mps": self.simplified.v_opt_mps,
             "energy_per_m_J": self.simplified.energy_per_m_J,
             "mission_time_s": self.simplified.mission_time_s,
+            "time_limit_s": self.time_limit_s,
+            "within_time_limit": self.simplified.within_time_limit,
+            "reason": self.simplified.reason,
+            "time_limited": (None if self.simplified.time_limited is None
+                             else self.simplified.time_limited.to_dict()),
             "crr": self.crr,
             "omega": self.omega,
             "ancillary_power_W": self.ancillary_power_W,
@@ -214,10 +261,12 @@ class RangeReport:
 
 def range_report(ctx) -> RangeReport:
     """Simplified range on flat default ground, its energy breakdown, and the generalised
-    offline range over the map (with wind, grades and surfaces)."""
+    offline range over the map (with wind, grades and surfaces); both within the scenario's
+    mission time limit."""
     scenario, model = ctx.scenario, ctx.model
     crr = ctx.world.default_crr
-    simple = simplified_range(scenario, model, crr)
+    limit = scenario.mission.time_limit_s
+    simple = simplified_range(scenario, model, crr, limit)
     return RangeReport(
         scenario=scenario.name,
         robot_kind=scenario.robot.kind,
@@ -226,6 +275,7 @@ def range_report(ctx) -> RangeReport:
         ancillary_power_W=float(model.ancillary_power_W(
             flat_state(simple.v_opt_mps, crr, scenario.ancillary.sensor_rate_Hz))),
         simplified=simple,
-        generalised=generalised_range(scenario, model, ctx.world),
+        generalised=generalised_range(scenario, model, ctx.world, time_limit_s=limit),
         energy=breakdown(scenario, model, simple, crr),
+        time_limit_s=limit,
     )

@@ -21,6 +21,7 @@ from orange_plan.physics.pathcost import (
     segments_energy_jacobian,
     subdivide,
 )
+from orange_plan.physics.profile import profile_gradient
 from orange_plan.planning.roadmap import (
     EdgeCostContext,
     Roadmap,
@@ -37,7 +38,8 @@ class PlannedPath:
     Attributes
     ----------
     xy_m : vertices, shape (n, 2) [m]
-    energy_J : battery energy of the whole path (path_energy, SPEC §7) [J]
+    energy_J : battery energy of the whole path (path_energy: SPEC §7 sub-steps, and the
+        driven speed profile when the cost carries an acceleration limit) [J]
     length_m : horizontal length [m]
     duration_s : mission time, stops included [s]
     speed_mps : cruise speed [m/s]
@@ -63,15 +65,18 @@ def clean_polyline(xy) -> np.ndarray:
 
 
 def evaluate_path(cost: EdgeCostContext, xy, method: str) -> PlannedPath:
-    """Exact energy of a polyline at the cost's cruise speed (``path_energy``)."""
+    """Exact energy of a polyline at the cost's cruise speed (``path_energy``; the driven
+    speed profile when the cost carries the robot's acceleration limit)."""
     p = clean_polyline(xy)
-    e = path_energy(cost.model, cost.world, p, cost.speed_mps, cost.duty_cycle, cost.sensor_rate_Hz)
+    e = path_energy(cost.model, cost.world, p, cost.speed_mps, cost.duty_cycle, cost.sensor_rate_Hz,
+                    cost.accel_max_mps2)
     length = float(np.sum(np.hypot(*np.diff(p, axis=0).T)))
     return PlannedPath(p, e.total_J, length, e.duration_s, float(cost.speed_mps), method)
 
 
 def path_gradient(cost: EdgeCostContext, xy) -> np.ndarray:
-    """d(path energy)/d theta of a polyline (exact terrain, turning included), shape (k,).
+    """d(path energy)/d theta of a polyline (exact terrain, turning included), shape (k,):
+    of the driven profile when the cost carries an acceleration limit, else of SPEC §7.
 
     With the model's covariance, ``model.energy_variance_J2(gradient)`` is the variance of the
     path's energy (reserve sizing, SPEC §7).
@@ -79,6 +84,10 @@ def path_gradient(cost: EdgeCostContext, xy) -> np.ndarray:
     p = clean_polyline(xy)
     model = cost.model
     steps = subdivide(cost.world, p[:-1], p[1:])
+    if cost.accel_max_mps2 is not None and np.any(steps.horiz_m > 0):
+        # the energy path_energy reports for this cost is the driven profile's
+        return profile_gradient(model, steps, steps.per_step(cost.speed_mps), cost.accel_max_mps2,
+                                cost.duty_cycle, cost.world.wind_xy_mps, cost.sensor_rate_Hz)
     jac = segments_energy_jacobian(model, cost.world, steps, cost.speed_mps, cost.duty_cycle,
                                    cost.sensor_rate_Hz).sum(axis=0)
     if len(p) > 2:

@@ -5,12 +5,14 @@ Problem statement (kept apart from how it is solved): a goal ``g`` is feasible f
 ``s -> g -> home`` exists with
 
     energy_used_J + E(s -> g) + E(g -> home) + reserve_J <= energy_available_J
+    and  time_used_s + T(s -> g -> home) within mission.time_limit_s (mission.check_time_limit)
 
-where ``E`` is the battery energy of SPEC §7 at the cruise speed and the reserve follows the
-scenario's ``mission.reserve``. How it is solved: an energy roadmap (``roadmap``), Dijkstra
-fields from the start and to home, each goal joined to its nearest roadmap vertices by
-collision-checked straight segments; the chosen round trip is then re-evaluated exactly with
-``path_energy`` and that exact energy decides feasibility. So a goal called feasible always has
+where ``E`` and ``T`` are the battery energy and mission time of the speed profile the robot
+drives at the cruise speed (``physics.profile``: the SPEC §7 energy plus ramps and stops) and
+the reserve follows the scenario's ``mission.reserve``. How it is solved: an energy roadmap
+(``roadmap``), Dijkstra fields from the start and to home, each goal joined to its nearest
+roadmap vertices by collision-checked straight segments; the chosen round trip is then
+re-evaluated exactly with ``path_energy`` and that exact energy and time decide feasibility. So a goal called feasible always has
 a drivable round trip whose energy, as reported, fits (the roadmap may miss a cheaper one:
 answers are conservative).
 """
@@ -25,6 +27,7 @@ from scipy.spatial import cKDTree
 from scipy.stats import norm
 
 from orange_plan.errors import InputError
+from orange_plan.mission import TimeLimitCheck, check_time_limit
 from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
 from orange_plan.planning.paths import clean_polyline, evaluate_path, path_gradient
 from orange_plan.planning.roadmap import (
@@ -84,6 +87,8 @@ class Reachability:
     start_index : start vertex (== roadmap.home_index without ``--from``)
     energy_available_J, energy_used_J : usable battery energy, energy spent so far [J]
     reserve : the scenario's reserve rule
+    time_limit_s : ``mission.time_limit_s`` (None: none) [s]; time_used_s : mission time so
+        far [s]
     """
 
     fast: EdgeCostContext
@@ -96,6 +101,12 @@ class Reachability:
     energy_available_J: float
     energy_used_J: float
     reserve: object
+    time_limit_s: float | None = None
+    time_used_s: float = 0.0
+
+    def time_check(self, trip_s: float) -> TimeLimitCheck:
+        """The mission time after a trip of ``trip_s`` [s] against the limit."""
+        return check_time_limit(self.time_used_s + trip_s, self.time_limit_s)
 
     @property
     def home_xy_m(self) -> tuple[float, float]:
@@ -128,14 +139,17 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
     # Energy gradients (for variances) cost time; only a confidence reserve needs them,
     # unless the caller asks (the tour planner reports a return probability for any reserve).
     gradient = sc.mission.reserve.kind == "confidence" if with_gradient is None else with_gradient
-    return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient),
-            EdgeCostContext(*common, ctx.world, *rest, step_m=None, with_gradient=gradient))
+    accel = sc.robot.accel_max_mps2
+    return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient,
+                            accel_max_mps2=accel),
+            EdgeCostContext(*common, ctx.world, *rest, step_m=None, with_gradient=gradient,
+                            accel_max_mps2=accel))
 
 
 def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
                   seed: int = 0, speed_mps: float | None = None,
                   terrain: TerrainRasters | None = None,
-                  with_gradient: bool | None = None) -> Reachability:
+                  with_gradient: bool | None = None, time_used_s: float = 0.0) -> Reachability:
     """Build the roadmap and the two fields for reach queries.
 
     Parameters
@@ -148,17 +162,20 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
     speed_mps : cruise speed [m/s]; default v_opt
     terrain : prebuilt rasters (else built here)
     with_gradient : compute energy gradients; default only for a confidence reserve
+    time_used_s : mission time already spent [s] (>= 0), counted against the time limit
 
     Raises
     ------
     InputError
-        If ``energy_used_J`` is negative or exceeds the available energy, or the start is not
-        in free space.
+        If ``energy_used_J`` is negative or exceeds the available energy, ``time_used_s`` is
+        negative, or the start is not in free space.
     """
     available = ctx.scenario.battery.usable_J
     if not (np.isfinite(energy_used_J) and 0.0 <= energy_used_J <= available):
         raise InputError(f"--energy-used-J = {energy_used_J:g} must be in [0, {available:.6g}] J "
                          "(the usable battery energy)")
+    if not (np.isfinite(time_used_s) and time_used_s >= 0.0):
+        raise InputError(f"--time-used-s = {time_used_s:g} must be a finite time >= 0 s")
     if start_xy is not None:
         start_xy = np.asarray(start_xy, float).reshape(2)
         if not bool(ctx.world.is_free(*start_xy)):
@@ -173,8 +190,10 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
         start = roadmap.n_vertices - 1
     from_start = energy_field(roadmap, start, towards=False)
     to_home = energy_field(roadmap, roadmap.home_index, towards=True)
+    mission = ctx.scenario.mission
     return Reachability(fast, exact, terrain, roadmap, from_start, to_home, start, available,
-                        float(energy_used_J), ctx.scenario.mission.reserve)
+                        float(energy_used_J), mission.reserve, mission.time_limit_s,
+                        float(time_used_s))
 
 
 # --- exact goal queries ------------------------------------------------------------------------
@@ -193,7 +212,9 @@ class GoalResult:
     energy_goal_to_home_J : goal -> home (turning at the goal included) [J]
     reserve_J : reserve for this round trip [J]
     margin_J : available - used - to goal - to home - reserve [J]
+    duration_s : mission time of the round trip, stops included [s]
     path_xy_m : the round trip start -> goal -> home, (n, 2) [m]
+    speed_mps : cruise speed commanded at each vertex of ``path_xy_m`` [m/s]
     reason : why not valid / not feasible
     """
 
@@ -206,12 +227,18 @@ class GoalResult:
     energy_goal_to_home_J: float | None = None
     reserve_J: float | None = None
     margin_J: float | None = None
+    duration_s: float | None = None
     path_xy_m: np.ndarray | None = None
+    speed_mps: np.ndarray | None = None
     reason: str | None = None
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d.pop("path_xy_m")
+        """JSON form; a feasible goal's route (``path_xy_m``, ``speed_mps``) as lists, to drive
+        (e.g. as a ``simulate`` route CSV); an infeasible goal's path is left out."""
+        d = {k: v for k, v in asdict(self).items() if k not in ("path_xy_m", "speed_mps")}
+        if self.feasible:
+            d["path_xy_m"] = np.asarray(self.path_xy_m, float).tolist()
+            d["speed_mps"] = np.asarray(self.speed_mps, float).tolist()
         for key in ("name", "reason"):
             if d[key] is None:
                 d.pop(key)
@@ -227,22 +254,35 @@ class HomeStatus:
     reserve_J: float | None
     margin_J: float | None
     path_xy_m: np.ndarray | None
+    duration_s: float | None = None
+    reason: str | None = None
 
 
 def home_status(reach: Reachability) -> HomeStatus:
-    """Exact energy of the best roadmap path start -> home and whether it fits."""
+    """Exact energy and time of the best roadmap path start -> home and whether they fit."""
     if reach.start_index == reach.roadmap.home_index:
         xy = np.array([reach.home_xy_m, reach.home_xy_m])
-        res = _reserve_of(reach, xy)
-        margin = reach.energy_available_J - reach.energy_used_J - res
-        return HomeStatus(margin >= 0, 0.0, res, margin, xy)
-    if not np.isfinite(reach.to_home.energy_J[reach.start_index]):
-        return HomeStatus(False, None, None, None, None)
-    xy = reach.roadmap.xy_m[reach.to_home.path(reach.start_index)]
-    path = evaluate_path(reach.exact, xy, "roadmap energy")
-    res = _reserve_of(reach, path.xy_m)
-    margin = reach.energy_available_J - reach.energy_used_J - path.energy_J - res
-    return HomeStatus(margin >= 0, path.energy_J, res, margin, path.xy_m)
+        energy_J, duration_s = 0.0, 0.0
+    elif not np.isfinite(reach.to_home.energy_J[reach.start_index]):
+        return HomeStatus(False, None, None, None, None, reason="no path home on the roadmap")
+    else:
+        path = evaluate_path(reach.exact, reach.roadmap.xy_m[reach.to_home.path(
+            reach.start_index)], "roadmap energy")
+        xy, energy_J, duration_s = path.xy_m, path.energy_J, path.duration_s
+    res = _reserve_of(reach, xy)
+    margin = reach.energy_available_J - reach.energy_used_J - energy_J - res
+    reason = _infeasible_reason(margin, reach.time_check(duration_s), "the way home")
+    return HomeStatus(reason is None, energy_J, res, margin, xy, duration_s, reason)
+
+
+def _infeasible_reason(margin_J: float, time: TimeLimitCheck, what: str) -> str | None:
+    """None when both the energy (margin >= 0) and the time limit hold, else why not."""
+    reasons = []
+    if not margin_J >= 0:
+        reasons.append(f"{what} and reserve exceed the remaining energy")
+    if not time.within:
+        reasons.append(time.reason)
+    return "; ".join(reasons) or None
 
 
 def _reserve_of(reach: Reachability, xy) -> float:
@@ -306,17 +346,18 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     back = np.vstack([goal, rm.xy_m[reach.to_home.path(b)]])
     trip = clean_polyline(dedupe(np.vstack([out, back])))
     c = reach.exact
-    cumulative = path_energy(c.model, c.world, trip, c.speed_mps, c.duty_cycle,
-                             c.sensor_rate_Hz).cumulative_J
+    energy = path_energy(c.model, c.world, trip, c.speed_mps, c.duty_cycle, c.sensor_rate_Hz,
+                         c.accel_max_mps2)
+    cumulative = energy.cumulative_J
     # Turning at the goal is charged to the way back (path_energy charges a vertex's turn to
     # the segment leaving it), so the two legs add up to the round trip exactly.
     to_goal = float(cumulative[len(out) - 1])
     total = float(cumulative[-1])
     res = _reserve_of(reach, trip)
     margin = reach.energy_available_J - reach.energy_used_J - total - res
-    feasible = bool(margin >= 0)
-    return GoalResult(x, y, name, True, feasible, to_goal, total - to_goal, res, margin, trip,
-                      None if feasible else "round trip and reserve exceed the remaining energy")
+    reason = _infeasible_reason(margin, reach.time_check(energy.duration_s), "round trip")
+    return GoalResult(x, y, name, True, reason is None, to_goal, total - to_goal, res, margin,
+                      energy.duration_s, trip, np.full(len(trip), float(c.speed_mps)), reason)
 
 
 def dedupe(xy) -> np.ndarray:

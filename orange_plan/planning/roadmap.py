@@ -79,6 +79,9 @@ class EdgeCostContext:
     sensor_rate_Hz: float
     step_m: float | None = None  # integration sub-step; None: the SPEC §7 sub-step
     with_gradient: bool = True  # also compute d energy / d theta (confidence reserves)
+    # the robot's acceleration limit: exact path energies follow the driven speed profile
+    # (ramps, duty-cycle stops); edge weights stay SPEC §7 (they only rank paths)
+    accel_max_mps2: float | None = None
 
     def costs(self, start_xy, end_xy):
         """Energies and jacobians of segments a -> b and b -> a.

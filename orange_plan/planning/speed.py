@@ -25,8 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from orange_plan.errors import InputError, PlanningError
+from orange_plan.mission import check_time_limit
 from orange_plan.physics.pathcost import path_energy, subdivide
 from orange_plan.physics.state import MotionState
+
+TIGHTEN_ROUNDS = 4
+"""Re-solves allowed to bring the driven profile within a time limit or energy budget."""
 
 FIELDS = ("length_m", "cos_t", "sin_t", "dir_x", "dir_y", "crr", "surface_code")
 
@@ -139,11 +143,13 @@ class SpeedProfile:
     Attributes
     ----------
     xy_m : piece end points (N + 1, 2) [m]; speed_mps : per piece (N,) [m/s]
-    energy_J : ``path_energy`` at these speeds (exact terrain, SPEC §7) [J]
+    energy_J : ``path_energy`` at these speeds (exact terrain, SPEC §7 sub-steps, the driven
+        profile with its ramps and stops when a World is given) [J]
     duration_s : mission time [s]
     iterations : IPOPT iterations; solve_seconds : wall-clock of the solve [s]
     pieces_energy_J : energy as the NLP sees it (one step per piece) [J]; ``energy_J`` re-
         integrates with the SPEC §7 sub-steps when a World is given
+    pieces_duration_s : mission time as the NLP sees it (constant speed per piece) [s]
     """
 
     xy_m: np.ndarray
@@ -153,6 +159,7 @@ class SpeedProfile:
     iterations: int
     solve_seconds: float
     pieces_energy_J: float
+    pieces_duration_s: float
 
 
 class SpeedSolver:
@@ -228,15 +235,50 @@ class SpeedSolver:
         Raises
         ------
         PlanningError
-            If IPOPT does not converge (e.g. an energy budget below what the path needs).
+            If IPOPT does not converge (e.g. an energy budget below what the path needs), or
+            the driven profile cannot be brought within the time limit or energy budget.
+
+        Notes
+        -----
+        With a World the limit is checked on the driven profile (``physics.profile``: from
+        and to rest, duty-cycle stops), which takes longer and draws more than the NLP's
+        constant-speed pieces; the NLP's limit is tightened by the overshoot and the problem
+        solved again, up to ``TIGHTEN_ROUNDS`` times (the overshoot hardly depends on the speeds).
         """
+        time_bound = problem.objective == "energy"
+        limit = problem.time_limit_s if time_bound else problem.energy_budget_J
+        profile = self._solve_once(problem, model_world, warm_start, limit)
+        if model_world is None or limit is None:
+            return profile
+        pc = problem.pieces
+        fastest_s = float(np.sum(pc.length_m) / (problem.v_max_mps * problem.duty_cycle))
+        for _ in range(TIGHTEN_ROUNDS):
+            exact, pieces = ((profile.duration_s, profile.pieces_duration_s) if time_bound
+                             else (profile.energy_J, profile.pieces_energy_J))
+            if exact <= limit:
+                return profile
+            nlp_limit = pieces - (exact - limit)
+            if time_bound and nlp_limit < fastest_s:
+                break
+            profile = self._solve_once(problem, model_world, profile.speed_mps, nlp_limit)
+        if time_bound:
+            check = check_time_limit(profile.duration_s, limit)
+            if check.within:
+                return profile
+            raise PlanningError(f"speed profile: {check.reason} (ramps and duty-cycle stops "
+                                "included)")
+        if profile.energy_J <= limit:
+            return profile
+        raise PlanningError(f"speed profile: driven energy {profile.energy_J:,.0f} J exceeds the "
+                            f"energy budget {limit:,.0f} J (ramps and duty-cycle stops included)")
+
+    def _solve_once(self, problem: SpeedProblem, model_world, warm_start, limit) -> SpeedProfile:
+        """One IPOPT solve with the NLP's limit ``limit`` (time or energy; None: none)."""
         import time as _time
 
         pc = problem.pieces
         solver = self._solver(problem)
         no_limit = 1e30
-        limit = (problem.time_limit_s if problem.objective == "energy"
-                 else problem.energy_budget_J)
         p = np.concatenate([getattr(pc, f) for f in FIELDS]
                            + [[no_limit if limit is None else limit]])
         x0 = warm_start if warm_start is not None else self._last.get(pc.n)
@@ -258,13 +300,14 @@ class SpeedSolver:
         e = self.model.segment_energy(self._state(problem, speed, vars(pc)), pc.length_m,
                                       problem.duty_cycle)
         pieces_J = float(np.sum(e.ancillary_J + e.traversal_J))
-        energy, duration = pieces_J, float(np.sum(e.mission_time_s))
+        pieces_s = float(np.sum(e.mission_time_s))
+        energy, duration = pieces_J, pieces_s
         if model_world is not None:
             exact = path_energy(self.model, model_world, pc.xy_m, speed, problem.duty_cycle,
-                                problem.sensor_rate_Hz)
+                                problem.sensor_rate_Hz, problem.accel_max_mps2)
             energy, duration = exact.total_J, exact.duration_s
         return SpeedProfile(pc.xy_m, speed, energy, duration, int(stats["iter_count"]), seconds,
-                            pieces_J)
+                            pieces_J, pieces_s)
 
 
 def _piece_caps(problem: SpeedProblem) -> np.ndarray:

@@ -37,6 +37,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from orange_plan.errors import InputError, PlanningError
+from orange_plan.mission import check_time_limit
 from orange_plan.physics.pathcost import path_energy, segments_energy_jacobian, subdivide
 from orange_plan.planning import orienteering
 from orange_plan.planning.coverage import (
@@ -46,6 +47,7 @@ from orange_plan.planning.coverage import (
     coverage_grid,
     footprint,
 )
+from orange_plan.planning.paths import evaluate_path
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import (
     Reachability,
@@ -59,7 +61,7 @@ from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, ene
 COST_MODES = ("physics", "distance")
 MAX_CANDIDATES = 400
 """Candidates kept for the tour search (the best by area per joule of a round trip)."""
-MAX_BUDGET_TRIES = 6
+MAX_BUDGET_TRIES = 8
 """Times the budget is lowered when the re-evaluated walk breaks a homing constraint."""
 TIME_TOLERANCE = 1e-6
 """Relative overrun of the time limit accepted as the optimiser's round-off [-]."""
@@ -127,39 +129,50 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     setup = tour_setup(planning_ctx, start, n_vertices, seed, max_candidates, step)
     reach = setup.reach
     remaining = reach.energy_available_J - reach.energy_used_J
-    budget = remaining - _reserve_estimate(planning_ctx, setup)
+    reserve_guess, time_factor = _probe(setup)
+    budget = remaining - reserve_guess
     time_left = _time_left_s(ctx, start)
-    budget_s = time_left
+    budget_s = time_left / time_factor
     last_error = None
-    for _ in range(MAX_BUDGET_TRIES):
+    for attempt in range(MAX_BUDGET_TRIES):
         if budget <= 0 or budget_s <= 0:
-            break
+            return _too_small(ctx, reach, last_error)
         step(f"choosing candidates (budget {budget / 1e3:,.1f} kJ)")
         problem = replace(setup.problem, budget_J=budget, budget_s=budget_s)
         tour = orienteering.solve(problem, step)
         if not tour.nodes:
-            break
+            return _too_small(ctx, reach, last_error)
         step("BIT* on the costliest legs")
         walk_setup, ids, refined = refine_legs(setup, tour.nodes, bitstar_s, bitstar_legs, seed)
         step(f"speeds and homing check on {len(ids)} vertices")
-        plan = evaluate_walk(planning_ctx, walk_setup, ids, start, optimise_speed)
+        plan, variance = evaluate_walk(planning_ctx, walk_setup, ids, start, optimise_speed)
         energy_short = -float(plan.margin_J.min())
         overrun_s = float(plan.t_s[-1]) - start.time_s - time_left
-        if energy_short <= 0 and overrun_s <= TIME_TOLERANCE * time_left:
-            plan = _finish(planning_ctx, walk_setup, plan, tour, ids, start, t0)
+        in_time = check_time_limit(float(plan.t_s[-1]) * (1 - TIME_TOLERANCE),
+                                   ctx.scenario.mission.time_limit_s).within
+        if energy_short <= 0 and in_time:
+            plan = _finish(planning_ctx, walk_setup, plan, tour, variance, start, t0)
             plan.summary["legs_refined_by_bitstar"] = refined
             return plan
         last_error = f"{max(energy_short, 0):.3g} J short, {max(overrun_s, 0):.3g} s over"
+        # Cut by the deficit plus a slice that doubles with every try: a new tour may have a
+        # deficit of its own, and the loop must end.
         if energy_short > 0:
-            budget -= 1.05 * energy_short + 1e-3 * remaining
-        if overrun_s > 0:
-            budget_s -= 1.05 * overrun_s + 1e-3 * time_left
-    if last_error is not None:
-        raise PlanningError(f"no tour keeps the homing constraint at every vertex ({last_error})")
+            budget -= 1.05 * energy_short + 2**attempt * 1e-3 * remaining
+        if not in_time:
+            budget_s -= 1.5 * max(overrun_s, 0.0) + 2**attempt * 1e-2 * time_left
+    raise PlanningError(f"no tour kept the homing constraint at every vertex after "
+                        f"{MAX_BUDGET_TRIES} budget cuts ({last_error})")
+
+
+def _too_small(ctx, reach: Reachability, last_error) -> None:
+    """No candidate fits: the request itself is infeasible (exit 2), said in one line."""
+    remaining = reach.energy_available_J - reach.energy_used_J
+    detail = f"; the smallest tour was {last_error}" if last_error else ""
     raise InputError(
         f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and the "
         f"reserve kept ({remaining / 1e3:,.3g} kJ left of {reach.energy_available_J / 1e3:,.3g}"
-        " kJ): the battery is too small to leave home, or the time limit is too short")
+        f" kJ): the battery is too small to leave home, or the time limit is too short{detail}")
 
 
 def distance_context(ctx):
@@ -378,25 +391,30 @@ def _leg_times(ctx, speed_mps: float, xy: np.ndarray, pred: np.ndarray) -> np.nd
     return length / (speed_mps * ctx.duty_cycle)
 
 
-def _reserve_estimate(ctx, setup: TourSetup) -> float:
-    """First guess of the final reserve: that of the costliest candidate's round trip, scaled
-    to the whole remaining energy (the budget loop corrects it against the exact figure)."""
+def _probe(setup: TourSetup) -> tuple[float, float]:
+    """First guesses for the budgets, from the costliest single-candidate round trip driven
+    exactly: the final reserve [J] (that trip's reserve per joule, scaled to the whole energy
+    left) and the factor by which the driven profile (ramps, stops) lengthens the cruise-speed
+    mission time the search counts [-]. The budget loop corrects both against the exact walk.
+    """
     reach = setup.reach
-    res = reach.reserve
-    left = reach.energy_available_J - reach.energy_used_J
-    if res.kind != "confidence":
-        return float(reserve_J(res, reach.energy_available_J, 0.0))
+    res, ex = reach.reserve, reach.exact
     p = setup.problem
     trip = p.travel_J[0, p.entry[:, 0]] + p.travel_J[p.exit[:, 0], 1]
     k = int(np.argmax(np.where(np.isfinite(trip), trip, -1)))
     ids = walk_vertices(setup, [(k, 0)])
     xy = setup.roadmap_xy_m[ids]
-    e = path_energy(reach.exact.model, reach.exact.world, xy, reach.exact.speed_mps,
-                    reach.exact.duty_cycle, reach.exact.sensor_rate_Hz).total_J
-    var = _variance(reach, xy, reach.exact.speed_mps, home_legs(setup, ids)[1])
-    ratio = float(reserve_J(res, reach.energy_available_J, var[-1])) / max(e, 1e-9)
+    walk = drive(ex, xy, ex.speed_mps)
+    cruise = path_energy(ex.model, ex.world, xy, ex.speed_mps, ex.duty_cycle,
+                         ex.sensor_rate_Hz).duration_s
+    time_factor = max(1.0, float(walk.time_s[-1]) / cruise) if cruise > 0 else 1.0
+    left = reach.energy_available_J - reach.energy_used_J
+    if res.kind != "confidence":
+        return float(reserve_J(res, reach.energy_available_J, 0.0)), time_factor
+    var = _variance(reach, walk.energy_J[-1], walk.gradient[-1])
+    ratio = float(reserve_J(res, reach.energy_available_J, var)) / max(walk.energy_J[-1], 1e-9)
     # reserve ~ ratio * E_tour and E_tour + reserve <= left
-    return left * ratio / (1.0 + ratio)
+    return left * ratio / (1.0 + ratio), time_factor
 
 
 # --- the walk: polyline, speeds, re-evaluation ---------------------------------------------
@@ -447,8 +465,7 @@ def refine_legs(setup: TourSetup, nodes, seconds: float = BITSTAR_S,
         return setup, _join(parts), 0
     ex, xy = setup.reach.exact, setup.roadmap_xy_m
     legs = [k for k in range(1, len(parts), 2) if len(parts[k]) >= 2]
-    energy = {k: path_energy(ex.model, ex.world, xy[parts[k]], ex.speed_mps, ex.duty_cycle,
-                             ex.sensor_rate_Hz).total_J for k in legs}
+    energy = {k: evaluate_path(ex, xy[parts[k]], "roadmap leg").energy_J for k in legs}
     costly = sorted(legs, key=lambda k: -energy[k])[:max_legs]
     new_xy, replaced = [], {}
     for k in costly:
@@ -503,26 +520,28 @@ def sensing_speed_mps(ctx) -> float:
 
 
 def evaluate_walk(ctx, setup: TourSetup, ids: np.ndarray, start: StartState,
-                  optimise_speed: bool = True) -> Plan:
+                  optimise_speed: bool = True) -> tuple[Plan, np.ndarray]:
     """Speeds for a walk and its exact per-vertex figures (energies, return, reserve, margin).
 
-    The figures go into a Plan whose summary is completed by ``_finish``.
+    Returns the Plan (its summary completed by ``_finish``) and the predictive variance of
+    the energy still needed at each vertex [J^2] (for the return probability).
     """
     reach = setup.reach
     xy = setup.roadmap_xy_m[ids]
     speeds = _speeds(ctx, xy, start) if optimise_speed else None
     if speeds is None:
         speeds = np.full(len(xy) - 1, reach.exact.speed_mps)
-    ex = reach.exact
-    energy = path_energy(ex.model, ex.world, xy, speeds, ex.duty_cycle, ex.sensor_rate_Hz)
-    used = reach.energy_used_J + energy.cumulative_J
-    home_J, home_grad = home_legs(setup, ids)
-    var = _variance(reach, xy, speeds, home_grad)
+    walk = drive(reach.exact, xy, speeds)
+    used = reach.energy_used_J + walk.energy_J
+    home = home_legs(setup, ids)
+    needed = walk.energy_J + home.energy_J  # what must still come out of the battery
+    gradient = walk.gradient + home.gradient
+    var = _variance(reach, needed, gradient)
     res = reserve_J(reach.reserve, reach.energy_available_J, var)
-    margin = reach.energy_available_J - used - home_J - res
-    t = start.time_s + energy.cumulative_time_s
-    return Plan(xy, t, np.r_[speeds, speeds[-1]], used, home_J, res, margin,
-                np.empty((0, 2)), None, {})
+    margin = reach.energy_available_J - used - home.energy_J - res
+    plan = Plan(xy, start.time_s + walk.time_s, np.r_[speeds, speeds[-1]], used, home.energy_J,
+                res, margin, np.empty((0, 2)), None, {})
+    return plan, _variance(reach, needed, gradient, always=True)
 
 
 def _speeds(ctx, xy: np.ndarray, start: StartState):
@@ -547,40 +566,92 @@ def _lane_caps(ctx, xy: np.ndarray) -> np.ndarray:
     return np.full(len(xy) - 1, sensing_speed_mps(ctx))
 
 
-def home_legs(setup: TourSetup, ids: np.ndarray):
-    """Energy [J] and d energy / d theta of the best roadmap return home from walk vertices.
+@dataclass(frozen=True)
+class Driven:
+    """Energy drawn along a driven path, at its vertices.
 
-    The return is the minimum-energy path on the roadmap the walk was built from (raster
-    terrain, as the roadmap weights), home itself costing nothing.
+    Attributes
+    ----------
+    energy_J : cumulative battery energy on reaching each vertex (the last: at rest at the
+        end, the final duty-cycle wait included) [J]
+    time_s : mission time at each vertex [s]
+    gradient : d energy_J / d theta at each vertex, shape (n, k)
     """
-    field = setup.to_home
-    energy = field.energy_J[ids].astype(float)
-    if not np.all(np.isfinite(energy)):
-        bad = int(np.flatnonzero(~np.isfinite(energy))[0])
-        raise PlanningError(f"walk vertex {bad} at {tuple(np.round(setup.roadmap_xy_m[ids[bad]], 2))}"
-                            " m has no roadmap return home")
-    return energy, field.gradient[ids].copy()
+
+    energy_J: np.ndarray
+    time_s: np.ndarray
+    gradient: np.ndarray
 
 
-def _variance(reach: Reachability, xy, speeds, home_grad=None, always: bool = False):
-    """Predictive variance of (energy so far + return) at each vertex [J^2] (zeros unless the
-    reserve is a confidence or ``always``)."""
-    n = len(xy)
+def drive(cost, xy, speed_mps) -> Driven:
+    """Energy, time and gradient of a polyline as ``path_energy`` / ``path_gradient`` give
+    them (the driven speed profile when ``cost`` carries an acceleration limit), from one
+    drive: both come from the same samples, so they cost one profile instead of two."""
+    from orange_plan.physics.profile import drive_path
+
+    xy = np.asarray(xy, float)
+    speed = np.broadcast_to(np.asarray(speed_mps, float), (len(xy) - 1,))
+    model, world = cost.model, cost.world
+    steps = subdivide(world, xy[:-1], xy[1:])
+    if cost.accel_max_mps2 is None or not np.any(steps.horiz_m > 0):
+        energy = path_energy(model, world, xy, speed, cost.duty_cycle, cost.sensor_rate_Hz)
+        jac = segments_energy_jacobian(model, world, steps, speed, cost.duty_cycle,
+                                       cost.sensor_rate_Hz)
+        grad = np.vstack([np.zeros((1, jac.shape[1])), np.cumsum(jac, axis=0)])
+        return Driven(energy.cumulative_J, energy.cumulative_time_s, grad)
+    kin, state = drive_path(steps, steps.per_step(speed), cost.accel_max_mps2, cost.duty_cycle,
+                            world.wind_xy_mps, cost.sensor_rate_Hz)
+    dt = float(kin["t"][1] - kin["t"][0]) if len(kin["t"]) > 1 else 0.1
+    power = np.broadcast_to(np.asarray(model.power_W(state), float), kin["t"].shape)
+    cum_e = np.cumsum(power) * dt
+    cum_g = np.cumsum(model.power_jacobian(state), axis=0) * dt
+    # energy drawn before first reaching each vertex's arclength (as ProfileEnergy.at_arclength)
+    vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+    i = np.clip(np.searchsorted(kin["s"], vertex_s - 1e-9, side="left"), 0, len(cum_e) - 1)
+    first = i == 0
+    energy = np.where(first, 0.0, cum_e[np.maximum(i - 1, 0)])
+    grad = np.where(first[:, None], 0.0, cum_g[np.maximum(i - 1, 0)])
+    time = kin["t"][i].astype(float)
+    energy[-1], grad[-1], time[-1] = cum_e[-1], cum_g[-1], kin["t"][-1] + dt  # final wait
+    return Driven(energy, time, grad)
+
+
+def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
+    """Energy [J] and gradient of the return home from each walk vertex (time: unused, 0).
+
+    The return is the minimum-energy path of the roadmap's to-home field from that vertex,
+    re-evaluated exactly like the walk itself (exact terrain, the driven speed profile from
+    rest to rest at the cruise speed): the field's raster figures only choose the path, so
+    the margin at every vertex is that of a return the robot can really drive.
+    """
+    field, ex = setup.to_home, setup.reach.exact
+    k = len(ex.model.theta)
+    energy, grad = np.zeros(len(ids)), np.zeros((len(ids), k))
+    for n, v in enumerate(np.asarray(ids, int)):
+        if v == setup.roadmap.home_index:
+            continue
+        if not np.isfinite(field.energy_J[v]):
+            raise PlanningError(f"walk vertex {n} at {tuple(np.round(setup.roadmap_xy_m[v], 2))}"
+                                " m has no roadmap return home")
+        back = drive(ex, setup.roadmap_xy_m[field.path(v)], ex.speed_mps)
+        energy[n], grad[n] = back.energy_J[-1], back.gradient[-1]
+    return Driven(energy, np.zeros(len(ids)), grad)
+
+
+def _variance(reach: Reachability, energy_J, gradient, always: bool = False) -> np.ndarray:
+    """Predictive variance of an energy still to be drawn [J^2] (zero unless the reserve is
+    a confidence, or ``always``): the model's parameter covariance along ``gradient``."""
+    energy = np.asarray(energy_J, float)
     if reach.reserve.kind != "confidence" and not always:
-        return np.zeros(n)
-    ex = reach.exact
-    steps = subdivide(ex.world, xy[:-1], xy[1:])
-    jac = segments_energy_jacobian(ex.model, ex.world, steps, speeds, ex.duty_cycle,
-                                   ex.sensor_rate_Hz)
-    prefix = np.vstack([np.zeros((1, jac.shape[1])), np.cumsum(jac, axis=0)])
-    total = prefix if home_grad is None else prefix + home_grad
-    return np.asarray(ex.model.energy_variance_J2(total), float).reshape(n)
+        return np.zeros(energy.shape)
+    return np.asarray(reach.exact.model.energy_variance_J2(gradient), float).reshape(energy.shape)
 
 
 # --- summary -------------------------------------------------------------------------------
 
 
-def _finish(ctx, setup: TourSetup, plan: Plan, tour, ids, start: StartState, t0: float) -> Plan:
+def _finish(ctx, setup: TourSetup, plan: Plan, tour, variance, start: StartState,
+            t0: float) -> Plan:
     """Covered area, waypoints and the SPEC §4 summary."""
     reach = setup.reach
     world = ctx.world
@@ -604,7 +675,7 @@ def _finish(ctx, setup: TourSetup, plan: Plan, tour, ids, start: StartState, t0:
         "coverage_fraction": float(covered.area / free_area) if free_area > 0 else 0.0,
         "coverage_bound_m2": float(bound),
         "duration_s": float(plan.t_s[-1] - start.time_s),
-        "return_probability": return_probability(setup, plan, ids),
+        "return_probability": return_probability(setup.reach, plan, variance),
         "planner_seconds": _time.perf_counter() - t0,
         "energy_used_start_J": reach.energy_used_J,
         "candidates_visited": len(tour.nodes),
@@ -623,19 +694,17 @@ def min_energy_per_m(ctx) -> float:
     return simplified_range(ctx.scenario, ctx.model, crr).energy_per_m_J
 
 
-def return_probability(setup: TourSetup, plan: Plan, ids) -> float:
+def return_probability(reach: Reachability, plan: Plan, variance_J2) -> float:
     """Probability of getting home from the worst vertex of the plan [-].
 
-    The energy needed from a vertex (used so far + return) is taken as normal around its
-    planned value with the model's predictive variance, whatever the reserve rule.
+    The energy still needed at a vertex (used so far + return) is taken as normal around its
+    planned value with its predictive variance ``variance_J2``, whatever the reserve rule.
     """
-    from scipy.stats import norm
+    from statistics import NormalDist
 
-    reach = setup.reach
-    _, grad = home_legs(setup, ids)
-    var = _variance(reach, plan.xy_m, plan.speed_mps[:-1], grad, always=True)
     slack = reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J
-    sd = np.sqrt(np.maximum(var, 0.0))
+    sd = np.sqrt(np.maximum(np.asarray(variance_J2, float), 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(sd > 0, slack / sd, np.where(slack >= 0, np.inf, -np.inf))
-    return float(norm.cdf(z.min()))
+    worst = float(z.min())
+    return 1.0 if worst == np.inf else 0.0 if worst == -np.inf else NormalDist().cdf(worst)

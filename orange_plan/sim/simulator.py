@@ -3,13 +3,15 @@
 The power at every sample is the scenario model's own ``EnergyModel.power_W`` evaluated on
 the simulated motion state (no physics is re-typed here). The simulator adds only the
 truth-only effects of ``sim.truth.Truth``: coefficient overrides, wind gusts, a payload change,
-terrain roughness, battery ageing, recording noise and duty-cycle stops.
+terrain roughness, battery ageing, recording noise and the duty-cycle stop cadence. The motion
+is the planner's own speed profile (``physics.profile.Driver``: ramps at ``accel_max_mps2``,
+duty-cycle stops, at rest at both ends with the duty cycle waited out at the end), so a plan's
+energy and the simulated draw of the same path under the same model agree.
 """
 
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,14 +21,18 @@ from scipy.signal import lfilter
 from orange_plan.errors import InputError, close_match_hint
 from orange_plan.physics.builder import is_mass_coefficient
 from orange_plan.physics.model import EnergyModel
-from orange_plan.physics.pathcost import subdivide, wrap_pi
-from orange_plan.physics.state import MotionState
+from orange_plan.physics.pathcost import subdivide
+from orange_plan.physics.profile import (
+    SAMPLE_DT_S,
+    TURN_SPREAD_S,
+    Driver,
+    drive_state,
+    spread_yaw_rate,
+    step_headings_rad,
+)
 from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
-
-TURN_SPREAD_S = 1.0
-"""A vertex's heading change is spread over this time, as a robot turns smoothly [s]."""
 
 CHUNK_S = 600.0
 """Simulated time per vectorised power evaluation (depletion is checked per chunk) [s]."""
@@ -97,66 +103,6 @@ def with_payload(model: EnergyModel, mass_kg: float, extra_kg: float) -> EnergyM
     return model.with_theta(theta)
 
 
-class _Driver:
-    """Point-mass kinematics along a route with accel limits and duty-cycle stops.
-
-    Speeds are along the path; the horizontal arclength advances by ``v cos(grade) dt``.
-    Stops: after ``stop_every_s`` of moving, brake and wait until moving time / mission time
-    has fallen to the duty cycle D, so the whole run keeps that ratio.
-    """
-
-    def __init__(self, edges_m, step_speed, step_cos, accel_max, dt, duty, stop_every_s, repeat):
-        self.edges = list(edges_m)
-        self.length = float(edges_m[-1])
-        self.speed, self.cos = list(step_speed), list(step_cos)
-        self.a, self.dt, self.duty = accel_max, dt, duty
-        self.every, self.repeat = stop_every_s, repeat
-        self.s = self.v = self.t = self.moving = 0.0
-        self.phase, self.next_stop = "move", stop_every_s
-        self.finished = False
-
-    def run(self, n: int) -> dict:
-        out = {k: [] for k in ("t", "s", "v", "accel", "step")}
-        n_steps = len(self.speed)
-        for _ in range(n):
-            if self.finished:
-                break
-            lap_s = self.s % self.length if self.repeat else min(self.s, self.length)
-            j = min(bisect_right(self.edges, lap_s) - 1, n_steps - 1)
-            target = self._target(j)
-            dv = min(max(target - self.v, -self.a * self.dt), self.a * self.dt)
-            v_new = max(0.0, self.v + dv)
-            for key, value in zip(out, (self.t, self.s, self.v, (v_new - self.v) / self.dt, j)):
-                out[key].append(value)
-            advance = 0.5 * (self.v + v_new) * self.dt * self.cos[j]
-            if self.v > 0 or v_new > 0:
-                self.moving += self.dt
-            self.s += advance
-            self.v, self.t = v_new, self.t + self.dt
-            if not self.repeat and self.length - self.s <= 1e-6:
-                self.finished = True
-        return {k: np.asarray(v) for k, v in out.items()}
-
-    def _target(self, j: int) -> float:
-        cruise = self.speed[j]
-        if self.duty < 1.0:
-            if self.phase == "move" and self.moving >= self.next_stop:
-                self.phase = "brake"
-            if self.phase == "brake" and self.v <= 0:
-                self.phase = "stop"
-            if self.phase == "stop" and self.t >= self.moving / self.duty:
-                self.phase, self.next_stop = "move", self.moving + self.every
-            if self.phase != "move":
-                return 0.0
-        if not self.repeat:
-            remaining = max(self.length - self.s, 0.0)
-            # brake to stop at the end; creep at >= 5 % of cruise so the run terminates
-            # (one step of anticipation: the speed follows the cap with a step's lag)
-            brake = math.sqrt(2 * self.a * remaining) - self.a * self.dt
-            return min(cruise, max(brake, 0.05 * cruise))
-        return cruise
-
-
 def _ou(rng, n: int, dt: float, std: float, tau: float, start: np.ndarray) -> np.ndarray:
     """Ornstein-Uhlenbeck samples (n, 2) continuing from ``start`` (2,), exact discretisation."""
     phi = math.exp(-dt / tau)
@@ -176,17 +122,8 @@ def _roughness(rng, length_m: float, std: float, corr_m: float):
     return grid, lfilter([1.0], [1.0, -phi], noise)
 
 
-def _yaw_rate(heading, last_heading, carry, k: int, dt: float):
-    """Heading increments spread over ``k`` samples (causal box filter) -> yaw rate [rad/s]."""
-    inc = wrap_pi(np.diff(np.r_[last_heading, heading]))
-    spread = np.convolve(inc, np.ones(k) / k)
-    spread[: carry.size] += carry
-    n = heading.size
-    return spread[:n] / dt, spread[n:]
-
-
 def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
-             sample_rate_Hz: float = 10.0, to_depletion: bool = False,
+             sample_rate_Hz: float = 1.0 / SAMPLE_DT_S, to_depletion: bool = False,
              max_duration_s: float = 172_800.0) -> SimResult:
     """Drive ``route`` in the scenario's world under ``truth`` and record it.
 
@@ -227,11 +164,10 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
 
     steps = subdivide(world, lap.xy_m[:-1], lap.xy_m[1:])
     edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
-    step_cos, step_sin = steps.cos_t, steps.sin_t
-    step_heading = np.arctan2(steps.dir_y, steps.dir_x)
+    step_heading = step_headings_rad(steps)
     speed = np.clip(lap.speed_mps[steps.segment], scenario.robot.v_min_mps, None)
-    driver = _Driver(edges, speed, step_cos, scenario.robot.accel_max_mps2, dt,
-                     ctx.duty_cycle, truth.stop_every_s, to_depletion)
+    driver = Driver(edges, speed, steps.cos_t, scenario.robot.accel_max_mps2, dt,
+                    ctx.duty_cycle, truth.stop_every_s, to_depletion)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lap.xy_m, axis=0).T))]
     rough_grid, rough = _roughness(rng, float(edges[-1]), truth.roughness_crr_std,
                                    truth.roughness_length_m)
@@ -256,15 +192,10 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
         gust = gusts[-1]
         wind_xy = np.asarray(wind.mean_xy_mps) + gusts
         heading = step_heading[j]
-        yaw, carry = _yaw_rate(heading, heading0, carry, k_turn, dt)
+        yaw, carry = spread_yaw_rate(heading, heading0, carry, k_turn, dt)
         heading0 = heading[-1]
         crr = np.clip(steps.crr[j] + np.interp(s_lap, rough_grid, rough), 0.0, 1.0)
-        state = MotionState(
-            speed_mps=kin["v"], cos_t=step_cos[j], sin_t=step_sin[j], dir_x=steps.dir_x[j],
-            dir_y=steps.dir_y[j], wind_x_mps=wind_xy[:, 0], wind_y_mps=wind_xy[:, 1], crr=crr,
-            accel_mps2=kin["accel"], yaw_rate_radps=yaw,
-            sensor_rate_Hz=np.full(j.size, ctx.sensor_rate_Hz),
-            surface_code=steps.surface_code[j])
+        state = drive_state(steps, kin, yaw, wind_xy, crr, ctx.sensor_rate_Hz)
         carrying = kin["t"] >= truth.payload_from_s if truth.payload_kg else np.zeros(j.size, bool)
         power = base.power_W(state)
         if carrying.any():  # the loaded model only where the payload is on board

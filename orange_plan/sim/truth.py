@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, close_match_hint
+from orange_plan.physics.profile import STOP_EVERY_S
 from orange_plan.physics.wind import wind_vector_mps
 from orange_plan.scenario import read_toml
 
@@ -91,7 +92,7 @@ class Truth:
     capacity_factor: float = 1.0
     power_std_W: float = 0.0
     position_std_m: float = 0.0
-    stop_every_s: float = 60.0
+    stop_every_s: float = STOP_EVERY_S
 
 
 _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {

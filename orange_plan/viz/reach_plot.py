@@ -33,6 +33,11 @@ def plot_reach(reach, field, xs, ys, goals, path: str | Path, title: str) -> Pat
     path : PNG file
     title : figure title (scenario, energy used)
     """
+    return save_figure(reach_figure(reach, field, xs, ys, goals, title), path)
+
+
+def reach_figure(reach, field, xs, ys, goals, title: str):
+    """The reach figure (matplotlib Figure; parameters as ``plot_reach``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -46,7 +51,8 @@ def plot_reach(reach, field, xs, ys, goals, path: str | Path, title: str) -> Pat
     margin_kJ = field.margin_J.reshape(shape) / 1e3
     ok = field.valid.reshape(shape) & np.isfinite(margin_kJ)
     feasible = ok & (margin_kJ >= 0)
-    fig, ax = plt.subplots(figsize=(9, 7.5))
+    # constrained layout makes room for the legend below the axes (under the x label)
+    fig, ax = plt.subplots(figsize=(9, 7.5), layout="constrained")
     extent = (xs[0] - (xs[1] - xs[0]) / 2, xs[-1] + (xs[1] - xs[0]) / 2,
               ys[0] - (ys[1] - ys[0]) / 2, ys[-1] + (ys[1] - ys[0]) / 2)
     shown = np.where(feasible, margin_kJ, np.nan)
@@ -97,26 +103,36 @@ def plot_reach(reach, field, xs, ys, goals, path: str | Path, title: str) -> Pat
         ax.plot(g.x_m, g.y_m, marker=style[0], ms=9, color=style[1], mec="black", zorder=7)
         if g.path_xy_m is not None and g.feasible:
             ax.plot(*g.path_xy_m.T, color="white", lw=0.8, alpha=0.8, zorder=5)
-        if g.name:
-            ax.annotate(g.name, (g.x_m, g.y_m), xytext=(5, 5), textcoords="offset points",
-                        fontsize=8, zorder=8)
     if goals:
         handles += [Line2D([], [], marker="o", color="limegreen", mec="black", ls="",
                            label="goal: feasible"),
                     Line2D([], [], marker="X", color="red", mec="black", ls="",
                            label="goal: infeasible"),
                     Line2D([], [], marker="x", color="black", ls="", label="goal: invalid")]
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, -0.07), ncol=3,
-              fontsize=8, frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=8, frameon=False)
     bx0, by0, bx1, by1 = world.map.boundary.bounds
     gx_all = [bx0, bx1, *(g.x_m for g in goals)]
     gy_all = [by0, by1, *(g.y_m for g in goals)]
     pad = 0.02 * max(bx1 - bx0, by1 - by0)
     ax.set_xlim(min(gx_all) - (pad if len(goals) else 0), max(gx_all) + (pad if len(goals) else 0))
     ax.set_ylim(min(gy_all) - (pad if len(goals) else 0), max(gy_all) + (pad if len(goals) else 0))
+    _label_goals(ax, goals)
     ax.set_xlabel("x [m] (east)")
     ax.set_ylabel("y [m] (north)")
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    return fig
+
+
+def _label_goals(ax, goals) -> None:
+    """Name each goal on the side facing the middle of the view, so a goal at the edge (one
+    outside the boundary sets the view's edge) keeps its label inside the axes."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    for g in goals:
+        if not g.name:
+            continue
+        right = g.x_m > 0.5 * (x0 + x1)
+        top = g.y_m > 0.5 * (y0 + y1)
+        ax.annotate(g.name, (g.x_m, g.y_m), xytext=(-6 if right else 6, -6 if top else 6),
+                    textcoords="offset points", ha="right" if right else "left",
+                    va="top" if top else "bottom", fontsize=8, zorder=8)
