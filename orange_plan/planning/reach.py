@@ -51,14 +51,16 @@ def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
     ----------
     reserve : scenario ``mission.reserve`` (kind ``fraction``, ``energy_J`` or ``confidence``)
     energy_available_J : usable battery energy E_avail [J]
-    variance_J2 : variance ``g' Cov g`` of the round trip's energy (model parameter
-        uncertainty) [J^2]; any shape
+    variance_J2 : predictive variance of the round trip's energy,
+        ``EnergyModel.predictive_variance_J2(g, E)`` = ``g' Cov g + (discrepancy_rel_sd E)^2``
+        (coefficient uncertainty plus run-to-run discrepancy) [J^2]; any shape
 
     Notes
     -----
-    ``confidence = p``: the round-trip energy is taken as normal with the model's parameter
-    variance, so ``z_p sqrt(g' Cov g)`` above the planned energy is enough with probability p
-    (DESIGN.md: the reserve is sized by the model, not a magic margin).
+    ``confidence = p``: the round-trip energy is taken as normal with the model's predictive
+    variance, so ``z_p sqrt(variance)`` above the planned energy is enough with probability p
+    (DESIGN.md: the reserve is sized by the model, not a magic margin). ``bench calibration``
+    measures how often real runs exceed it.
     """
     var = np.asarray(variance_J2, float)
     if reserve.kind == "fraction":
@@ -228,22 +230,24 @@ def home_status(reach: Reachability) -> HomeStatus:
     """Exact energy of the best roadmap path start -> home and whether it fits."""
     if reach.start_index == reach.roadmap.home_index:
         xy = np.array([reach.home_xy_m, reach.home_xy_m])
-        res = _reserve_of(reach, xy)
+        res = _reserve_of(reach, xy, 0.0)
         margin = reach.energy_available_J - reach.energy_used_J - res
         return HomeStatus(margin >= 0, 0.0, res, margin, xy)
     if not np.isfinite(reach.to_home.energy_J[reach.start_index]):
         return HomeStatus(False, None, None, None, None)
     xy = reach.roadmap.xy_m[reach.to_home.path(reach.start_index)]
     path = evaluate_path(reach.exact, xy, "roadmap energy")
-    res = _reserve_of(reach, path.xy_m)
+    res = _reserve_of(reach, path.xy_m, path.energy_J)
     margin = reach.energy_available_J - reach.energy_used_J - path.energy_J - res
     return HomeStatus(margin >= 0, path.energy_J, res, margin, path.xy_m)
 
 
-def _reserve_of(reach: Reachability, xy) -> float:
+def _reserve_of(reach: Reachability, xy, energy_J: float) -> float:
+    """Reserve of the path ``xy`` whose exact energy is ``energy_J`` [J]."""
     var = 0.0
     if reach.reserve.kind == "confidence":
-        var = reach.exact.model.energy_variance_J2(path_gradient(reach.exact, xy))
+        gradient = path_gradient(reach.exact, xy)
+        var = reach.exact.model.predictive_variance_J2(gradient, energy_J)
     return float(reserve_J(reach.reserve, reach.energy_available_J, var))
 
 
@@ -307,7 +311,7 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     # the segment leaving it), so the two legs add up to the round trip exactly.
     to_goal = float(cumulative[len(out) - 1])
     total = float(cumulative[-1])
-    res = _reserve_of(reach, trip)
+    res = _reserve_of(reach, trip, total)
     margin = reach.energy_available_J - reach.energy_used_J - total - res
     feasible = bool(margin >= 0)
     return GoalResult(x, y, name, True, feasible, to_goal, total - to_goal, res, margin, trip,
@@ -373,7 +377,8 @@ def query_points(reach: Reachability, points_xy, k: int = 8) -> PointsReach:
         kk = j_in.shape[1]
         g = (reach.from_start.gradient[near[rows, bi]] + j_in.reshape(n, k, kk)[rows, bi]
              + j_out.reshape(n, k, kk)[rows, bo] + reach.to_home.gradient[near[rows, bo]])
-        var = fast.model.energy_variance_J2(g)
+        with np.errstate(invalid="ignore"):  # unreachable points: inf energy, nan variance
+            var = fast.model.predictive_variance_J2(g, to_goal + to_home)
     res = reserve_J(reach.reserve, reach.energy_available_J, var)
     with np.errstate(invalid="ignore"):
         margin = reach.energy_available_J - reach.energy_used_J - to_goal - to_home - res
