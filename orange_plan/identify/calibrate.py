@@ -341,8 +341,8 @@ class Calibrator:
             e_pred = e_rec - float(np.sum(resid * test.dt_s))
             ho_bias = 100.0 * (e_pred - e_rec) / e_rec if e_rec else float("nan")
             ho_err = abs(ho_bias)
-        disc, disc_runs = self._discrepancy(samples, model)
         fitted, iters, noise = self._solve(samples, model)
+        disc, disc_runs = self._discrepancy(samples, model, fitted.theta)
         fitted = fitted.with_discrepancy(disc)
         resid = samples.power_W - np.asarray(fitted.power_W(samples.state), float)
         up = samples.wheels_up
@@ -378,10 +378,12 @@ class Calibrator:
             raise InputError(f"discrepancy_folds = {self.discrepancy_folds!r} must be an integer "
                              ">= 2")
 
-    def _discrepancy(self, samples: Samples, model: EnergyModel) -> tuple[float, int]:
+    def _discrepancy(self, samples: Samples, model: EnergyModel,
+                     start: np.ndarray) -> tuple[float, int]:
         """Run-to-run relative sd from recordings held out in groups (module docstring);
         (the model's a priori value, 0) with fewer than two recordings. Sets
-        ``discrepancy_residuals_`` (r_i) and ``discrepancy_param_rel_var_`` (g_i' Cov g_i / E_i^2)."""
+        ``discrepancy_residuals_`` (r_i) and ``discrepancy_param_rel_var_`` (g_i' Cov g_i / E_i^2).
+        The group fits start from ``start`` (the fit on all data: fewer iterations)."""
         runs = np.unique(samples.block[:, 0])
         k = min(len(runs), int(self.discrepancy_folds))
         self.discrepancy_residuals_ = np.zeros(0)
@@ -391,7 +393,7 @@ class Calibrator:
         resid, param_var = [], []
         for group in range(k):
             held = np.isin(samples.block[:, 0], runs[group::k])
-            fitted, _, _ = self._solve(samples.subset(~held), model)
+            fitted, _, _ = self._solve(samples.subset(~held), model, start)
             for run in runs[group::k]:
                 test = samples.subset(samples.block[:, 0] == run)
                 jac = fitted.power_jacobian(test.state)
@@ -419,12 +421,13 @@ class Calibrator:
         informative = (sd > 0) & self.use_prior
         return model.theta.copy(), np.where(informative, sd, np.inf)
 
-    def _solve(self, samples: Samples, model: EnergyModel):
+    def _solve(self, samples: Samples, model: EnergyModel, start: np.ndarray | None = None):
         """Gauss-Newton MAP fit; returns (model with theta and cov, iterations, (s2, tau))."""
         theta0, sd0 = self._prior(model)
         free = np.array([n not in self.fixed for n in model.names])
         y = samples.power_W
-        theta, s2, tau, iters = theta0.copy(), None, 1.0, 0
+        theta = theta0.copy() if start is None else np.array(start, dtype=float)
+        s2, tau, iters = None, 1.0, 0
         for _ in range(3):  # noise variance and inflation settle in two or three passes
             theta, iters = self._gauss_newton(model, samples.state, y, theta, theta0, sd0, free,
                                               s2 * tau if s2 else None)
