@@ -95,22 +95,27 @@ def _coverage_table(summary, key: str, title: str, prior_only: bool) -> Table:
 
     table = Table(title=title, header_style="bold",
                   caption="reserve(p) = z_p x predictive sd (coefficient covariance + run-to-run "
-                          "discrepancy); honest when exceeded in <= 100 (1 - p) % of runs")
+                          "discrepancy); honest when exceeded in <= 100 (1 - p) % of runs; in "
+                          "brackets: the reserve from the coefficient covariance alone")
     models = [("a priori", "_prior")] + ([] if prior_only else [("calibrated", "")])
     table.add_column(key, justify="left")
-    for label, suffix in models:
+    for label, _ in models:
         table.add_column(f"{label}: sd / E", justify="right")
         for p in RESERVE_CONFIDENCES:
-            table.add_column(f"{label}: > reserve({p:g})", justify="right")
+            table.add_column(f"{label}: > reserve({p:g}) (coefficients only)", justify="right")
     for s in summary:
         cells = [str(s[key])]
         for _, suffix in models:
             cells.append(f"{100 * s[f'sd_rel{suffix}_mean']:.1f} %")
             for p in RESERVE_CONFIDENCES:
                 tag = f"p{round(100 * p)}{suffix}"
-                cells.append(f"{s[f'exceed_{tag}_pct']:.1f} % ({s[f'exceed_{tag}_runs']})")
+                cells.append(f"{_share(s, tag)} ({_share(s, tag + '_param')})")
         table.add_row(*cells)
     return table
+
+
+def _share(summary: dict, tag: str) -> str:
+    return f"{summary[f'exceed_{tag}_pct']:.1f} % / {summary[f'exceed_{tag}_runs']}"
 
 
 @bench_app.command("online")

@@ -68,7 +68,8 @@ class OnlineRow:
     ``d_online_m`` / ``accuracy_online_pct`` are at ``PREDICT_AT[0]`` of the run;
     ``accuracy_online_mean_pct`` averages the online accuracy over all ``PREDICT_AT``.
     ``energy_predicted_prior_J`` / ``_sd_J``: the a-priori model's whole-run energy along the
-    recorded motion and its predictive standard deviation; ``energy_recorded_J`` the run's.
+    recorded motion and its predictive standard deviation (``_param_sd_J``: its coefficient
+    covariance part alone, the reserve before issue #8); ``energy_recorded_J`` the run's.
     """
 
     scenario: str
@@ -86,6 +87,7 @@ class OnlineRow:
     energy_recorded_J: float = float("nan")
     energy_predicted_prior_J: float = float("nan")
     energy_predicted_prior_sd_J: float = float("nan")
+    energy_predicted_prior_param_sd_J: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -195,7 +197,8 @@ def online_run(ctx, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
                      picks[0].range_total_m, picks[0].range_remaining_sd_m,
                      accuracy_pct(trace.d_offline_m, sim.distance_m), acc[0],
                      float(np.mean(acc)), picks[0].t_s, sim.duration_s, route.length_m,
-                     trace.energy_recorded_J, trace.prior.energy_J, trace.prior.sd_J)
+                     trace.energy_recorded_J, trace.prior.energy_J, trace.prior.sd_J,
+                     trace.prior.param_sd_J)
 
 
 def online_benchmark(scenario_dir: str | Path, scenarios=None, seeds=(0, 1, 2),
@@ -217,7 +220,8 @@ def online_benchmark(scenario_dir: str | Path, scenarios=None, seeds=(0, 1, 2),
 
 def summarise(rows, key: str = "scenario") -> list[dict]:
     """Mean accuracy per scenario (offline, online) over seeds; runs exceeding the a-priori
-    prediction + reserve(p) (``coverage_summary``, suffix ``_prior``)."""
+    prediction + reserve(p) (``coverage_summary``, suffix ``_prior``; ``_prior_param`` with the
+    reserve from the coefficient covariance alone)."""
     out = []
     for name in dict.fromkeys(getattr(r, key) for r in rows):
         mine = [r for r in rows if getattr(r, key) == name]
@@ -235,6 +239,10 @@ def summarise(rows, key: str = "scenario") -> list[dict]:
             **coverage_summary([r.energy_recorded_J for r in mine],
                                [r.energy_predicted_prior_J for r in mine],
                                [r.energy_predicted_prior_sd_J for r in mine], "_prior"),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_prior_J for r in mine],
+                               [r.energy_predicted_prior_param_sd_J for r in mine],
+                               "_prior_param"),
         })
     return out
 
@@ -264,7 +272,8 @@ class CalibrationRow:
     """One held-out run: recorded vs predicted whole-run energy, calibrated and a priori
     (offline), with each prediction's predictive standard deviation (``_sd_J``: coefficient
     covariance plus run-to-run discrepancy, what a confidence reserve is sized from; the
-    calibrated model's ``discrepancy_rel_sd`` is estimated on its training runs only), and
+    calibrated model's ``discrepancy_rel_sd`` is estimated on its training runs only;
+    ``_param_sd_J`` the coefficient covariance part alone, the reserve before issue #8), and
     online (``online_energy_errors``): ``online_error_pct`` at ``PREDICT_AT[0]`` of the run
     starting from the calibrated model, ``online_error_mean_abs_pct`` the mean |error| over
     ``PREDICT_AT``, and ``online_prior_error_pct`` at ``PREDICT_AT[0]`` starting from the
@@ -284,6 +293,8 @@ class CalibrationRow:
     energy_predicted_prior_J: float = float("nan")
     energy_predicted_prior_sd_J: float = float("nan")
     discrepancy_rel_sd: float = float("nan")
+    energy_predicted_param_sd_J: float = float("nan")
+    energy_predicted_prior_param_sd_J: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -396,7 +407,8 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
                                            100 * (pred0 - recorded) / recorded, online[0],
                                            float(np.mean(np.abs(online))), online0[0],
                                            fitted.sd_J, pred0, before.sd_J,
-                                           cal.discrepancy_rel_sd_))
+                                           cal.discrepancy_rel_sd_, fitted.param_sd_J,
+                                           before.param_sd_J))
             if progress:
                 progress()
     return rows
@@ -405,7 +417,8 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
 def summarise_calibration(rows) -> list[dict]:
     """Per dataset: held-out runs, mean and max |error|, pooled error (sum of energies), and
     how often the recorded energy exceeded predicted + reserve(p) (``coverage_summary``;
-    suffix ``_prior`` for the a-priori model), with the discrepancies used."""
+    suffix ``_prior`` for the a-priori model; ``_param`` / ``_prior_param`` with the reserve
+    from the coefficient covariance alone), with the discrepancies used."""
     out = []
     for name in dict.fromkeys(r.dataset for r in rows):
         mine = [r for r in rows if r.dataset == name]
@@ -439,5 +452,12 @@ def summarise_calibration(rows) -> list[dict]:
             **coverage_summary([r.energy_recorded_J for r in mine],
                                [r.energy_predicted_prior_J for r in mine],
                                [r.energy_predicted_prior_sd_J for r in mine], "_prior"),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_J for r in mine],
+                               [r.energy_predicted_param_sd_J for r in mine], "_param"),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_prior_J for r in mine],
+                               [r.energy_predicted_prior_param_sd_J for r in mine],
+                               "_prior_param"),
         })
     return out

@@ -71,11 +71,13 @@ class RunEnergy:
     power_W : predicted battery power per sample [W] (n,)
     energy_J : its integral over the run, gaps skipped [J]
     sd_J : predictive standard deviation of ``energy_J`` [J]
+    param_sd_J : its coefficient-covariance part alone, ``sqrt(g' Cov g)`` [J]
     """
 
     power_W: np.ndarray
     energy_J: float
     sd_J: float
+    param_sd_J: float
 
 
 def run_energy(recording: Recording, model: EnergyModel, state: MotionState) -> RunEnergy:
@@ -100,7 +102,7 @@ def run_energy(recording: Recording, model: EnergyModel, state: MotionState) -> 
     energy = integrate_J(recording, power)
     gradient = np.array([integrate_J(recording, column) for column in jac.T])
     sd = float(np.sqrt(model.predictive_variance_J2(gradient, energy)))
-    return RunEnergy(power, energy, sd)
+    return RunEnergy(power, energy, sd, float(np.sqrt(model.energy_variance_J2(gradient))))
 
 
 def replay(recording: Recording, model: EnergyModel, world=None,
