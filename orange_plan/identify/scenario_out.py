@@ -128,14 +128,15 @@ def _check_rebuild(path: Path, model: EnergyModel) -> None:
 
 
 def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) -> Path:
-    """Write the calibrated scenario atomically; it is loaded back before it replaces ``path``.
+    """Write the calibrated scenario atomically; it is loaded back and must rebuild ``model``
+    (coefficients and discrepancy; correlations are not stored) before it replaces ``path``.
 
     Raises
     ------
     InputError
         The output folder does not exist.
     OrangeError
-        The written file would not load (an internal failure).
+        The written file would not load or not rebuild the model (an internal failure).
     """
     path = Path(path)
     if not path.parent.exists():
