@@ -19,13 +19,14 @@ per-surface ``rolling_kg_<s>`` live in ``[model]`` (``physical_values`` reports 
 crr factor and masses). Physical keys are clipped at 0 where a fit went negative; the term
 stays on because ``[model]`` sets its coefficient (``builder.reference_term_ids``).
 
-The written scenario rebuilds the fitted model, no more: a reference term the fit left out
-(``calibrate --terms``) is switched off, by its physical key where it has one (``s1_W_per_Hz``,
-``hover_W``, ``drag_coeff_kg_per_m``, ``turn_coeff_W_s_per_rad`` = 0), else by a zero
-coefficient with a zero standard error (``ancillary_W``, ``rolling_kg``, ``grade_kg``).
-``[model] discrepancy_rel_sd`` is the fitted model's run-to-run relative standard deviation
-(estimated from held-out recordings by ``Calibrator``). ``write_calibrated_scenario`` checks
-the rebuild before the file replaces its target.
+Everything the fit did not touch stays as the scenario had it: a term left out by
+``calibrate --terms`` keeps its value, and the ``[model]`` table keeps its other entries
+(e.g. a coefficient set to 0 to switch a term's effect off); extra terms the fit added join
+``[model] terms``. Keeping rather than dropping errs on the safe side for planning (a grade
+term not fitted on flat recordings still charges hills). ``[model] discrepancy_rel_sd`` is the
+fitted model's run-to-run relative standard deviation (estimated from held-out recordings by
+``Calibrator``). ``write_calibrated_scenario`` checks that the file rebuilds every fitted
+coefficient before it replaces its target.
 """
 
 from __future__ import annotations
@@ -38,15 +39,13 @@ import tomli_w
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError, OrangeError
-from orange_plan.physics.builder import build_model, reference_terms_by_physics
+from orange_plan.physics.builder import build_model
 from orange_plan.physics.model import EnergyModel
-from orange_plan.physics.terms import TERMS
 from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
 
-WRITTEN_BACK = {"ancillary.s1_W_per_Hz": "sensor_rate", "robot.hover_W": "hover",
-                "robot.drag_coeff_kg_per_m": "aero_drag", "robot.turn_coeff_W_s_per_rad": "turning"}
-"""Physical scenario keys (of ``physical_values``) a calibrated scenario updates, clipped at 0,
-and the reference term each switches on."""
+WRITTEN_BACK = ("ancillary.s1_W_per_Hz", "robot.hover_W", "robot.drag_coeff_kg_per_m",
+                "robot.turn_coeff_W_s_per_rad")
+"""Physical scenario keys (of ``physical_values``) a calibrated scenario updates, clipped at 0."""
 
 
 def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
@@ -93,43 +92,34 @@ def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path) -> dic
         if total <= 0:
             anc["s0_W"] = target
     for dotted in WRITTEN_BACK:
-        # absent from the fit: 0 switches the term off
-        section, key = dotted.split(".")
-        data.setdefault(section, {})[key] = max(0.0, physical.get(dotted, 0.0))
-    old = data.get("model", {})
-    table: dict = {"terms": [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]}
-    if "prior_relative_stderr" in old:
-        table["prior_relative_stderr"] = old["prior_relative_stderr"]
+        if dotted in physical:
+            section, key = dotted.split(".")
+            data.setdefault(section, {})[key] = max(0.0, physical[dotted])
+    table = dict(data.get("model", {}))
+    fitted_extras = [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]
+    table["terms"] = list(dict.fromkeys([*table.get("terms", []), *fitted_extras]))
     table["discrepancy_rel_sd"] = model.discrepancy_rel_sd
     table.update({k: float(v) for k, v in theta.items()})
-    table["stderr"] = {k: float(v) for k, v in sd.items()}
-    for term_id, on in reference_terms_by_physics(scenario).items():
-        if term_id in WRITTEN_BACK.values():  # on or off by the key written above
-            continue
-        for name in TERMS[term_id].coefficients if on else ():
-            if name not in theta:  # on whatever its key says: a zero keeps it out of the sums
-                table[name] = 0.0
-                table["stderr"][name] = 0.0
+    table["stderr"] = {**table.get("stderr", {}), **{k: float(v) for k, v in sd.items()}}
     data["model"] = table
     return data
 
 
 def _check_rebuild(path: Path, model: EnergyModel) -> None:
-    """The scenario at ``path`` must rebuild ``model`` (its extra names at zero)."""
+    """The scenario at ``path`` must rebuild every coefficient of ``model`` and its discrepancy."""
     surface = next((t for t in model.terms if t.id == "surface_rolling"), None)
     names = [] if surface is None else [c.removeprefix("rolling_kg_") for c in surface.coefficients]
     rebuilt = build_model(load_scenario(path), names)
-    theta = model.as_dict()
-    wrong = [n for n, v in rebuilt.as_dict().items() if v != theta.get(n, 0.0)]
-    wrong += [n for n in theta if n not in rebuilt.names]
+    have = rebuilt.as_dict()
+    wrong = [n for n, v in model.as_dict().items() if have.get(n) != v]
     if wrong or rebuilt.discrepancy_rel_sd != model.discrepancy_rel_sd:
         raise OrangeError(f"the calibrated scenario does not rebuild the fitted model "
                           f"(coefficients {wrong})")
 
 
 def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) -> Path:
-    """Write the calibrated scenario atomically; it is loaded back and must rebuild ``model``
-    (coefficients and discrepancy; correlations are not stored) before it replaces ``path``.
+    """Write the calibrated scenario atomically; it is loaded back and must rebuild ``model``'s
+    coefficients and discrepancy (correlations are not stored) before it replaces ``path``.
 
     Raises
     ------
