@@ -102,7 +102,7 @@ def _coverage_table(summary, key: str, title: str, prior_only: bool) -> Table:
     for label, _ in models:
         table.add_column(f"{label}: sd / E", justify="right")
         for p in RESERVE_CONFIDENCES:
-            table.add_column(f"{label}: > reserve({p:g}) (coefficients only)", justify="right")
+            table.add_column(f"{label}: > reserve({p:g})", justify="right")
     for s in summary:
         cells = [str(s[key])]
         for _, suffix in models:
