@@ -137,6 +137,47 @@ def test_written_scenario_loads_and_rebuilds_the_fitted_model(ctx, tmp_path):
         cal.theta_["ancillary_W"] + cal.theta_["sensor_W_per_Hz"] * ctx.sensor_rate_Hz)
 
 
+@pytest.mark.parametrize("spread", [0.0, 0.1])
+def test_discrepancy_is_the_held_out_run_to_run_spread(ctx, spread):
+    # six runs of the same motion drawing (1 +- spread) x the power: a fit on the others
+    # predicts each run's energy about spread off, whatever its coefficients
+    base = simulated(ctx, Truth(coefficients=TRUTH, power_std_W=0.2), 7, duration_s=120)
+    runs = []
+    for i in range(6):
+        frame = base.frame.copy()
+        frame["power_W"] *= 1 + spread * (-1) ** i
+        runs.append(recording_from_frame(frame, f"run {i}"))
+    cal = Calibrator().fit(runs, ctx)
+    assert cal.fit_report_.discrepancy_runs == 6
+    assert cal.model_.discrepancy_rel_sd == cal.discrepancy_rel_sd_
+    assert cal.discrepancy_rel_sd_ == pytest.approx(spread, abs=0.015)
+
+
+def test_one_recording_keeps_the_a_priori_discrepancy(ctx):
+    cal = Calibrator().fit([simulated(ctx, Truth(power_std_W=0.2), 8, duration_s=60)], ctx)
+    assert cal.fit_report_.discrepancy_runs == 0
+    assert cal.discrepancy_rel_sd_ == ctx.model.discrepancy_rel_sd > 0
+
+
+def test_written_scenario_keeps_what_the_fit_left_out(ctx, tmp_path):
+    # calibrate --terms ancillary,aero_drag,turning_torque, drag fitted negative: the fitted
+    # values are written (drag's physical key clipped at 0, its term kept on by [model]), and
+    # every term the fit left out keeps the scenario's value
+    model = model_with_terms(ctx, ["ancillary", "aero_drag", "turning_torque"])
+    model = model.with_theta({"ancillary_W": 12.0, "drag_kg_per_m": -0.3,
+                              "turning_torque_W": 4.0}).with_discrepancy(0.08)
+    write_calibrated_scenario(ctx.scenario, model, tmp_path / "subset.toml")
+    again = load_context(tmp_path / "subset.toml")
+    assert again.scenario.robot.drag_coeff_kg_per_m == 0.0
+    assert again.scenario.model.terms == ("surface_rolling", "turning_torque")
+    assert again.model.discrepancy_rel_sd == 0.08
+    fitted, before = model.as_dict(), ctx.model.as_dict()
+    for name, value in again.model.as_dict().items():
+        assert value == fitted.get(name, before.get(name)), name
+    assert set(again.model.names) == set(before) | set(fitted)
+    assert again.model.stderr()["turn_J_per_rad"] == ctx.model.stderr()["turn_J_per_rad"]
+
+
 def test_model_with_terms_adds_terms_with_a_prior(ctx):
     model = model_with_terms(ctx, ["ancillary", "rolling", "inertia"])
     assert model.names == ("ancillary_W", "rolling_kg", "inertia_kg")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from orange_plan.errors import InputError
 from orange_plan.physics.model import EnergyModel
@@ -157,6 +159,32 @@ def test_covariance_bookkeeping():
     assert m3.as_dict() == {"rolling_kg": 10.0, "grade_kg": 10.0}
 
 
+def test_predictive_variance_adds_the_run_to_run_discrepancy():
+    cov = np.diag([4.0, 9.0])
+    m = EnergyModel([TERMS["ancillary"], TERMS["rolling"]],
+                    {"ancillary_W": 5.0, "rolling_kg": 10.0}, cov, discrepancy_rel_sd=0.1)
+    # g' Cov g = 40 J^2 (above) plus (0.1 x 100 J)^2 = 100 J^2
+    assert float(m.predictive_variance_J2(np.array([1.0, 2.0]), 100.0)) == pytest.approx(140.0)
+    # kept through with_theta / with_terms, replaced by with_discrepancy
+    assert m.with_theta({"rolling_kg": 1.0}).discrepancy_rel_sd == 0.1
+    assert m.with_terms([TERMS["rolling"]], {}).discrepancy_rel_sd == 0.1
+    assert m.with_discrepancy(0.0).predictive_variance_J2(np.array([1.0, 2.0]), 100.0) == 40.0
+
+
+@settings(max_examples=50, deadline=None)
+@given(rel=st.floats(0.0, 2.0), energy=st.floats(-1e6, 1e6),
+       g=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=2),
+       sd=st.lists(st.floats(0.0, 1e2), min_size=2, max_size=2))
+def test_predictive_variance_is_parameter_variance_plus_discrepancy(rel, energy, g, sd):
+    m = EnergyModel([TERMS["ancillary"], TERMS["rolling"]],
+                    {"ancillary_W": 5.0, "rolling_kg": 10.0}, np.diag(np.square(sd)),
+                    discrepancy_rel_sd=rel)
+    param = float(m.energy_variance_J2(np.array(g)))
+    total = float(m.predictive_variance_J2(np.array(g), energy))
+    assert total >= param >= 0.0
+    assert total - param == pytest.approx((rel * energy) ** 2, rel=1e-9, abs=1e-6 * (1 + param))
+
+
 def test_bad_model_inputs():
     with pytest.raises(InputError, match="repeat an id"):
         EnergyModel([TERMS["rolling"], TERMS["rolling"]], {"rolling_kg": 1.0})
@@ -165,5 +193,7 @@ def test_bad_model_inputs():
                     {"ancillary_W": 1.0, "rolling_kg": 1.0}, np.eye(1))
     with pytest.raises(InputError, match=r"omega = 0 must be in \(0, 1\]"):
         EnergyModel([TERMS["rolling"]], {"rolling_kg": 1.0}, omega=0)
+    with pytest.raises(InputError, match="discrepancy_rel_sd = -0.1 must be >= 0"):
+        EnergyModel([TERMS["rolling"]], {"rolling_kg": 1.0}, discrepancy_rel_sd=-0.1)
     with pytest.raises(InputError, match="no coefficient named 'crr_kg'"):
         EnergyModel([TERMS["rolling"]], {"rolling_kg": 1.0}).coefficient("crr_kg")

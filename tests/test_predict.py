@@ -37,6 +37,18 @@ def test_replay_matches_the_hand_computed_power(tmp_path):
     assert result.duration_s == pytest.approx(16.0)
 
 
+def test_predicted_sd_is_parameter_plus_discrepancy_by_hand(tmp_path):
+    # 16 s at constant motion: energies by term, ancillary (2 + 3 + 1)/0.8 x 16 = 120 J,
+    # sensor 0.1/0.8 x 10 Hz x 16 = 20 J, rolling 3.40625 W x 16 = 54.5 J (grade 0). A priori
+    # stderr 10 % of each coefficient: var = 0.01 (120^2 + 20^2 + 54.5^2); discrepancy 0.2 E.
+    ctx = load_context(write_scenario(tmp_path, set={"model": {"discrepancy_rel_sd": 0.2}}))
+    result = replay_context(recording_from_frame(drive(HAND_POWER_W)), ctx)
+    energy = HAND_POWER_W * 16.0
+    assert result.energy_predicted_J == pytest.approx(energy)
+    var = 0.01 * (120.0**2 + 20.0**2 + 54.5**2) + (0.2 * energy) ** 2
+    assert result.energy_predicted_sd_J == pytest.approx(np.sqrt(var))
+
+
 def test_replay_error_sign_and_rmse(tmp_path):
     ctx = load_context(write_scenario(tmp_path))
     result = replay(recording_from_frame(drive(2 * HAND_POWER_W)), ctx.model, ctx.world,
@@ -53,8 +65,8 @@ def test_predict_cli_json_and_png(tmp_path):
     code, stdout, _ = run_cli("predict", rec, "--scenario", scenario, "--png", png, "--json")
     assert code == 0
     report = json.loads(stdout)
-    for key in ("energy_recorded_J", "energy_predicted_J", "energy_error_pct", "rmse_W",
-                "duration_s"):
+    for key in ("energy_recorded_J", "energy_predicted_J", "energy_predicted_sd_J",
+                "energy_error_pct", "rmse_W", "duration_s"):
         assert isinstance(report[key], float)
     assert report["energy_error_pct"] == pytest.approx(0.0, abs=1e-9)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

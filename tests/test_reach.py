@@ -11,6 +11,7 @@ from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.planning.goals import load_goals
+from orange_plan.planning.paths import path_gradient
 from orange_plan.planning.reach import (
     home_status,
     prepare_reach,
@@ -56,6 +57,20 @@ def test_goal_answers_are_exact_round_trips(world, reach):
         assert g.margin_J == pytest.approx(reach.energy_available_J - e.total_J - g.reserve_J)
         assert g.feasible == (g.margin_J >= 0)
         assert np.allclose(g.path_xy_m[[0, -1]], world.world.home_xy_m)
+
+
+def test_confidence_reserve_is_sized_from_the_predictive_variance(world, reach):
+    # z_p sqrt(g' Cov g + (discrepancy_rel_sd E)^2): parameters and run-to-run spread
+    model, z = world.model, norm.ppf(0.95)
+    for g in query_goals(reach, [[35.0, 25.0], [38.0, 3.0]]):
+        energy = g.energy_to_goal_J + g.energy_goal_to_home_J
+        param = float(model.energy_variance_J2(path_gradient(reach.exact, g.path_xy_m)))
+        assert g.reserve_J == pytest.approx(z * np.sqrt(param + (model.discrepancy_rel_sd
+                                                                 * energy) ** 2))
+        assert g.reserve_J > z * model.discrepancy_rel_sd * energy > 0
+    pts = query_points(reach, [[35.0, 25.0]])
+    assert pts.reserve_J[0] > z * model.discrepancy_rel_sd * (pts.energy_to_goal_J[0]
+                                                              + pts.energy_goal_to_home_J[0])
 
 
 def test_invalid_goals_have_reasons(reach):

@@ -9,7 +9,12 @@ from planning_worlds import write_world
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.planning.reach import cost_contexts
-from orange_plan.planning.roadmap import add_vertices, build_roadmap, energy_field
+from orange_plan.planning.roadmap import (
+    add_vertices,
+    build_roadmap,
+    energy_field,
+    surface_samples,
+)
 from orange_plan.world.rasters import build_rasters
 
 pytestmark = pytest.mark.timeout(60)
@@ -22,6 +27,15 @@ def setup(tmp_path_factory):
                                    reserve={"confidence": 0.95}))
     fast, exact = cost_contexts(ctx, build_rasters(ctx.world))
     return ctx, fast, exact, build_roadmap(fast, n_vertices=300, seed=3)
+
+
+def test_surface_samples_skip_a_surface_whose_share_rounds_to_zero(tmp_path):
+    # 3 samples by area: the 30 x 20 m surface gets floor(3 x 600/601) = 2, the 1 m^2 one none
+    ctx = load_context(write_world(tmp_path, surfaces=[(5, 5, 35, 25, 0.001),
+                                                       (37, 1, 38, 2, 0.001)]))
+    pts = surface_samples(ctx.world, 3, seed=0)
+    assert pts.shape == (2, 2)
+    assert np.all((pts >= [5, 5]) & (pts <= [35, 25]))
 
 
 def test_edges_are_collision_free_and_directed_both_ways(setup):

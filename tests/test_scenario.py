@@ -11,6 +11,7 @@ from conftest import write_scenario
 from orange_plan.errors import InputError, ScenarioError
 from orange_plan.physics.builder import build_model, reference_term_ids
 from orange_plan.scenario import (
+    DEFAULT_DISCREPANCY_REL_SD,
     DEFAULT_PRIOR_RELATIVE_STDERR,
     DEFAULT_REGEN_EFFICIENCY,
     NUMBER_SCHEMA,
@@ -106,6 +107,23 @@ def test_reference_terms_switch_on_with_their_values(tmp_path):
                                       "turning"]
 
 
+def test_a_model_coefficient_switches_its_reference_term_on(tmp_path):
+    # a calibrated scenario may hold a drag fitted negative: its physical key is clipped at 0
+    sc = load_scenario(write_scenario(tmp_path, set={"model": {"drag_kg_per_m": -0.5,
+                                                               "stderr": {"drag_kg_per_m": 0.2}}}))
+    assert reference_term_ids(sc) == ["ancillary", "sensor_rate", "rolling", "aero_drag", "grade"]
+    model = build_model(sc)
+    assert model.coefficient("drag_kg_per_m") == -0.5 and model.stderr()["drag_kg_per_m"] == 0.2
+
+
+def test_model_discrepancy_default_and_value(tmp_path):
+    assert build_model(load_scenario(write_scenario(tmp_path))).discrepancy_rel_sd == (
+        DEFAULT_DISCREPANCY_REL_SD)
+    path = write_scenario(tmp_path, set={"model": {"discrepancy_rel_sd": 0.07}})
+    assert load_scenario(path).model.discrepancy_rel_sd == 0.07
+    assert build_model(load_scenario(path)).discrepancy_rel_sd == 0.07
+
+
 @pytest.mark.parametrize(
     ("set_", "drop", "match"),
     [
@@ -135,6 +153,9 @@ def test_reference_terms_switch_on_with_their_values(tmp_path):
         ({"model": {"regen_eff": 0.5, "terms": ["regen"]}}, [],
          r"unknown key 'model.regen_eff' \(did you mean 'regen_efficiency'\?\)"),
         ({"model": {"stderr": {"rolling_kg": -1.0}}}, [], r"model.stderr.rolling_kg must be >= 0"),
+        ({"model": {"discrepancy_rel_sd": -0.1}}, [], r"model.discrepancy_rel_sd = -0.1 must be >= 0"),
+        ({"model": {"discrepancy_sd": 0.1}}, [],
+         r"unknown key 'model.discrepancy_sd' \(did you mean 'discrepancy_rel_sd'\?\)"),
     ],
 )
 def test_bad_scenarios(tmp_path, set_, drop, match):

@@ -84,6 +84,38 @@ def calibration_cmd(data: DataOpt = REPO.parent / "shared" / "data",
                       f"({s['online_mean_abs_error_over_run_pct']:.1f})",
                       f"{s['online_prior_mean_abs_error_pct']:.1f}")
     out.print(table)
+    out.print(_coverage_table(summary, "dataset", "Held-out real runs whose recorded energy "
+                              "exceeds predicted + reserve(p)", prior_only=False))
+
+
+def _coverage_table(summary, key: str, title: str, prior_only: bool) -> Table:
+    """Exceedance of predicted + reserve(p) (honest: at most 100 (1 - p) %), a priori and
+    calibrated, with the mean relative predictive sd the reserve was sized from."""
+    from orange_plan.identify.bench import RESERVE_CONFIDENCES
+
+    table = Table(title=title, header_style="bold",
+                  caption="reserve(p) = z_p x predictive sd (coefficient covariance + run-to-run "
+                          "discrepancy); honest when exceeded in <= 100 (1 - p) % of runs; in "
+                          "brackets: the reserve from the coefficient covariance alone")
+    models = [("a priori", "_prior")] + ([] if prior_only else [("calibrated", "")])
+    table.add_column(key, justify="left")
+    for label, _ in models:
+        table.add_column(f"{label}: sd / E", justify="right")
+        for p in RESERVE_CONFIDENCES:
+            table.add_column(f"{label}: > reserve({p:g})", justify="right")
+    for s in summary:
+        cells = [str(s[key])]
+        for _, suffix in models:
+            cells.append(f"{100 * s[f'sd_rel{suffix}_mean']:.1f} %")
+            for p in RESERVE_CONFIDENCES:
+                tag = f"p{round(100 * p)}{suffix}"
+                cells.append(f"{_share(s, tag)} ({_share(s, tag + '_param')})")
+        table.add_row(*cells)
+    return table
+
+
+def _share(summary: dict, tag: str) -> str:
+    return f"{summary[f'exceed_{tag}_pct']:.1f} % / {summary[f'exceed_{tag}_runs']}"
 
 
 @bench_app.command("online")
@@ -122,5 +154,7 @@ def online_cmd(scenarios: ScenariosOpt = REPO / "scenarios", seeds: SeedsOpt = 3
                       f"{s['accuracy_offline_pct']:.1f}", f"{s['accuracy_online_pct']:.1f}",
                       f"{s['accuracy_online_mean_pct']:.1f}")
     out.print(table)
+    out.print(_coverage_table(summary, "scenario", "Simulated runs whose energy exceeds the "
+                              "a-priori prediction + reserve(p)", prior_only=True))
     if png is not None:
         out.print(f"figure: {png}")

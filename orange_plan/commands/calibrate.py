@@ -63,6 +63,10 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
     fit = cal.fit_report_
     out.print(f"RMSE {fit.rmse_W:.3g} W; held out: RMSE {fit.holdout_rmse_W:.3g} W, energy "
               f"error {fit.energy_error_pct:.2f} %; residual autocorrelation x{fit.inflation:.1f}")
+    source = (f"from {fit.discrepancy_runs} held-out recordings" if fit.discrepancy_runs
+              else "a priori: one recording shows nothing run-to-run")
+    out.print(f"run-to-run discrepancy: {100 * fit.discrepancy_rel_sd:.1f} % of a run's energy "
+              f"({source})")
     if fit.unphysical:
         out.print(f"warning: outside the physical range: {', '.join(fit.unphysical)}")
     if cal.surface_crr_:

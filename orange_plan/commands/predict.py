@@ -42,8 +42,9 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
     wh = 1.0 / 3600.0
     out.print(f"{recording} under {ctx.scenario.name}: {result.duration_s:,.1f} s")
     out.print(f"  recorded  {result.energy_recorded_J * wh:,.3f} Wh")
-    out.print(f"  predicted {result.energy_predicted_J * wh:,.3f} Wh "
-              f"({result.energy_error_pct:+.1f} %), power RMSE {result.rmse_W:,.1f} W")
+    out.print(f"  predicted {result.energy_predicted_J * wh:,.3f} +- "
+              f"{result.energy_predicted_sd_J * wh:,.3f} Wh ({result.energy_error_pct:+.1f} %), "
+              f"power RMSE {result.rmse_W:,.1f} W")
     for issue in rec.issues:
         out.print(f"  {issue}", markup=False, highlight=False, soft_wrap=True)
     if png is not None:

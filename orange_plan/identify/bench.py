@@ -16,6 +16,9 @@ Offline vs online (the paper's AR Drone comparison, range accuracy
   motion and the measured power, not the truth: wind columns are not recorded, so its
   features use the scenario's wind.
 * truths (``BENCH_TRUTHS``): what the real world does differently from the scenario.
+* reserve: the a-priori model's prediction of the whole run's energy along the recorded
+  motion, with its predictive standard deviation; the run's recorded energy should exceed
+  predicted + reserve(p) in at most a fraction 1 - p of runs (``RESERVE_CONFIDENCES``).
 """
 
 from __future__ import annotations
@@ -64,6 +67,9 @@ class OnlineRow:
 
     ``d_online_m`` / ``accuracy_online_pct`` are at ``PREDICT_AT[0]`` of the run;
     ``accuracy_online_mean_pct`` averages the online accuracy over all ``PREDICT_AT``.
+    ``energy_predicted_prior_J`` / ``_sd_J``: the a-priori model's whole-run energy along the
+    recorded motion and its predictive standard deviation (``_param_sd_J``: its coefficient
+    covariance part alone, the reserve before issue #8); ``energy_recorded_J`` the run's.
     """
 
     scenario: str
@@ -78,6 +84,10 @@ class OnlineRow:
     t_predict_s: float
     duration_s: float
     lap_m: float
+    energy_recorded_J: float = float("nan")
+    energy_predicted_prior_J: float = float("nan")
+    energy_predicted_prior_sd_J: float = float("nan")
+    energy_predicted_prior_param_sd_J: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -117,6 +127,9 @@ def offline_range_m(ctx, route) -> float:
 
 PREDICT_AT = (0.2, 0.4, 0.6, 0.8)
 """Fractions of the run (mission time) at which the online estimate is taken."""
+RESERVE_CONFIDENCES = (0.9, 0.95)
+"""Confidences p at which the benchmarks check the reserve: a run's recorded energy should
+exceed predicted + reserve(p) in at most a fraction 1 - p of runs."""
 LAP_FRACTION = 0.1
 """Probe rays are cut so that one lap is at most this fraction of the offline range."""
 
@@ -133,7 +146,8 @@ def bench_route(ctx):
 
 @dataclass(frozen=True)
 class OnlineTrace:
-    """Estimates of one simulated run over time (for figures)."""
+    """Estimates of one simulated run over time (for figures), and the a-priori model's
+    whole-run energy along the recorded motion (``telemetry.replay.RunEnergy``)."""
 
     scenario: str
     t_s: np.ndarray
@@ -142,6 +156,8 @@ class OnlineTrace:
     d_true_m: float
     d_offline_m: float
     duration_s: float
+    energy_recorded_J: float
+    prior: object
 
 
 def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
@@ -152,6 +168,7 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     """
     from orange_plan.sim.simulator import simulate
     from orange_plan.telemetry.recording import motion_state, recording_from_frame
+    from orange_plan.telemetry.replay import run_energy
 
     route = bench_route(ctx)
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
@@ -164,7 +181,8 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     trace = OnlineTrace(ctx.scenario.name, np.array([h.t_s for h in history]),
                         np.array([h.range_total_m for h in history]),
                         np.array([h.range_remaining_sd_m for h in history]), sim.distance_m,
-                        offline_range_m(ctx, route), sim.duration_s)
+                        offline_range_m(ctx, route), sim.duration_s, rec.energy_J,
+                        run_energy(rec, ctx.model, state))
     return trace, history, sim, route
 
 
@@ -178,7 +196,9 @@ def online_run(ctx, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
     return OnlineRow(ctx.scenario.name, seed, sim.distance_m, trace.d_offline_m,
                      picks[0].range_total_m, picks[0].range_remaining_sd_m,
                      accuracy_pct(trace.d_offline_m, sim.distance_m), acc[0],
-                     float(np.mean(acc)), picks[0].t_s, sim.duration_s, route.length_m)
+                     float(np.mean(acc)), picks[0].t_s, sim.duration_s, route.length_m,
+                     trace.energy_recorded_J, trace.prior.energy_J, trace.prior.sd_J,
+                     trace.prior.param_sd_J)
 
 
 def online_benchmark(scenario_dir: str | Path, scenarios=None, seeds=(0, 1, 2),
@@ -199,7 +219,9 @@ def online_benchmark(scenario_dir: str | Path, scenarios=None, seeds=(0, 1, 2),
 
 
 def summarise(rows, key: str = "scenario") -> list[dict]:
-    """Mean accuracy per scenario (offline, online) over seeds."""
+    """Mean accuracy per scenario (offline, online) over seeds; runs exceeding the a-priori
+    prediction + reserve(p) (``coverage_summary``, suffix ``_prior``; ``_prior_param`` with the
+    reserve from the coefficient covariance alone)."""
     out = []
     for name in dict.fromkeys(getattr(r, key) for r in rows):
         mine = [r for r in rows if getattr(r, key) == name]
@@ -210,6 +232,17 @@ def summarise(rows, key: str = "scenario") -> list[dict]:
             "accuracy_online_pct": float(np.mean([r.accuracy_online_pct for r in mine])),
             "accuracy_online_mean_pct": float(np.mean([r.accuracy_online_mean_pct
                                                        for r in mine])),
+            "sd_rel_prior_mean": float(np.mean([r.energy_predicted_prior_sd_J
+                                                / r.energy_predicted_prior_J for r in mine])),
+            "energy_error_prior_pct": float(np.mean([
+                100 * (r.energy_predicted_prior_J / r.energy_recorded_J - 1) for r in mine])),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_prior_J for r in mine],
+                               [r.energy_predicted_prior_sd_J for r in mine], "_prior"),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_prior_J for r in mine],
+                               [r.energy_predicted_prior_param_sd_J for r in mine],
+                               "_prior_param"),
         })
     return out
 
@@ -237,10 +270,14 @@ kilowatts of traction noise the fit cannot pin it (0.1-0.8 between halves)."""
 @dataclass(frozen=True)
 class CalibrationRow:
     """One held-out run: recorded vs predicted whole-run energy, calibrated and a priori
-    (offline), and online (``online_energy_errors``): ``online_error_pct`` at
-    ``PREDICT_AT[0]`` of the run starting from the calibrated model,
-    ``online_error_mean_abs_pct`` the mean |error| over ``PREDICT_AT``, and
-    ``online_prior_error_pct`` at ``PREDICT_AT[0]`` starting from the a-priori model."""
+    (offline), with each prediction's predictive standard deviation (``_sd_J``: coefficient
+    covariance plus run-to-run discrepancy, what a confidence reserve is sized from; the
+    calibrated model's ``discrepancy_rel_sd`` is estimated on its training runs only;
+    ``_param_sd_J`` the coefficient covariance part alone, the reserve before issue #8), and
+    online (``online_energy_errors``): ``online_error_pct`` at ``PREDICT_AT[0]`` of the run
+    starting from the calibrated model, ``online_error_mean_abs_pct`` the mean |error| over
+    ``PREDICT_AT``, and ``online_prior_error_pct`` at ``PREDICT_AT[0]`` starting from the
+    a-priori model."""
 
     dataset: str
     fold: int
@@ -252,6 +289,12 @@ class CalibrationRow:
     online_error_pct: float
     online_error_mean_abs_pct: float
     online_prior_error_pct: float
+    energy_predicted_sd_J: float = float("nan")
+    energy_predicted_prior_J: float = float("nan")
+    energy_predicted_prior_sd_J: float = float("nan")
+    discrepancy_rel_sd: float = float("nan")
+    energy_predicted_param_sd_J: float = float("nan")
+    energy_predicted_prior_param_sd_J: float = float("nan")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -266,14 +309,44 @@ def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
     return [recording_from_frame(FORMATS[fmt](p), f"{p.parent.name}/{p.name}") for p in paths]
 
 
-def whole_run_energy_J(model, rec, ctx, settings: dict) -> float:
-    """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) [J]."""
+def whole_run_prediction(model, rec, ctx, settings: dict):
+    """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) and its
+    predictive standard deviation (``telemetry.replay.RunEnergy``)."""
     from orange_plan.identify.calibrate import recording_state
-    from orange_plan.telemetry.recording import integrate_J
+    from orange_plan.telemetry.replay import run_energy
 
     state = recording_state(rec, ctx, settings.get("grade_window_m"),
                             settings.get("yaw_rate_column"))
-    return integrate_J(rec, np.asarray(model.power_W(state), float) * np.ones(len(rec.frame)))
+    return run_energy(rec, model, state)
+
+
+def whole_run_energy_J(model, rec, ctx, settings: dict) -> float:
+    """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) [J]."""
+    return whole_run_prediction(model, rec, ctx, settings).energy_J
+
+
+def reserve_exceeded(recorded_J, predicted_J, sd_J, confidence: float) -> np.ndarray:
+    """True where a recorded energy exceeds predicted + the ``confidence`` reserve, the
+    reserve sized exactly as the planner sizes it (``planning.reach.reserve_J``)."""
+    from orange_plan.planning.reach import reserve_J
+    from orange_plan.scenario import Reserve
+
+    sd = np.asarray(sd_J, float)
+    reserve = reserve_J(Reserve("confidence", confidence), 0.0, sd**2)
+    return np.asarray(recorded_J, float) > np.asarray(predicted_J, float) + reserve
+
+
+def coverage_summary(recorded_J, predicted_J, sd_J, suffix: str = "") -> dict:
+    """Runs exceeding predicted + reserve(p), per ``RESERVE_CONFIDENCES``: percentage and
+    count (``exceed_p90_pct``, ``exceed_p90_runs``...; honest when the percentage is at most
+    100 (1 - p))."""
+    out = {}
+    for p in RESERVE_CONFIDENCES:
+        hit = reserve_exceeded(recorded_J, predicted_J, sd_J, p)
+        tag = f"p{round(100 * p)}"
+        out[f"exceed_{tag}{suffix}_pct"] = 100.0 * float(np.mean(hit))
+        out[f"exceed_{tag}{suffix}_runs"] = int(np.sum(hit))
+    return out
 
 
 def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
@@ -324,21 +397,28 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
             cal = Calibrator(**settings).fit(train, ctx)
             for rec in test:
                 recorded = rec.energy_J
-                pred = whole_run_energy_J(cal.model_, rec, ctx, settings)
-                pred0 = whole_run_energy_J(prior, rec, ctx, settings)
+                fitted = whole_run_prediction(cal.model_, rec, ctx, settings)
+                before = whole_run_prediction(prior, rec, ctx, settings)
+                pred, pred0 = fitted.energy_J, before.energy_J
                 online = online_energy_errors(cal.model_, rec, ctx, settings)
                 online0 = online_energy_errors(prior, rec, ctx, settings, PREDICT_AT[:1])
                 rows.append(CalibrationRow(name, fold, rec.source, recorded, pred,
                                            100 * (pred - recorded) / recorded,
                                            100 * (pred0 - recorded) / recorded, online[0],
-                                           float(np.mean(np.abs(online))), online0[0]))
+                                           float(np.mean(np.abs(online))), online0[0],
+                                           fitted.sd_J, pred0, before.sd_J,
+                                           cal.discrepancy_rel_sd_, fitted.param_sd_J,
+                                           before.param_sd_J))
             if progress:
                 progress()
     return rows
 
 
 def summarise_calibration(rows) -> list[dict]:
-    """Per dataset: held-out runs, mean and max |error|, pooled error (sum of energies)."""
+    """Per dataset: held-out runs, mean and max |error|, pooled error (sum of energies), and
+    how often the recorded energy exceeded predicted + reserve(p) (``coverage_summary``;
+    suffix ``_prior`` for the a-priori model; ``_param`` / ``_prior_param`` with the reserve
+    from the coefficient covariance alone), with the discrepancies used."""
     out = []
     for name in dict.fromkeys(r.dataset for r in rows):
         mine = [r for r in rows if r.dataset == name]
@@ -361,5 +441,23 @@ def summarise_calibration(rows) -> list[dict]:
                                                                  for r in mine])),
             "online_prior_mean_abs_error_pct": float(np.mean(np.abs(
                 [r.online_prior_error_pct for r in mine]))),
+            "discrepancy_rel_sd": float(np.mean([r.discrepancy_rel_sd for r in mine])),
+            "sd_rel_mean": float(np.mean([r.energy_predicted_sd_J / r.energy_predicted_J
+                                          for r in mine])),
+            "sd_rel_prior_mean": float(np.mean([r.energy_predicted_prior_sd_J
+                                                / r.energy_predicted_prior_J for r in mine])),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_J for r in mine],
+                               [r.energy_predicted_sd_J for r in mine]),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_prior_J for r in mine],
+                               [r.energy_predicted_prior_sd_J for r in mine], "_prior"),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_J for r in mine],
+                               [r.energy_predicted_param_sd_J for r in mine], "_param"),
+            **coverage_summary([r.energy_recorded_J for r in mine],
+                               [r.energy_predicted_prior_J for r in mine],
+                               [r.energy_predicted_prior_param_sd_J for r in mine],
+                               "_prior_param"),
         })
     return out

@@ -16,7 +16,17 @@ reference model enables by their physical value:
 
 Mass and crr stay as they were: ``rolling_kg``, ``grade_kg``, ``inertia_kg`` and the
 per-surface ``rolling_kg_<s>`` live in ``[model]`` (``physical_values`` reports the implied
-crr factor and masses). Physical keys are clipped at 0 where a fit went negative.
+crr factor and masses). Physical keys are clipped at 0 where a fit went negative; the term
+stays on because ``[model]`` sets its coefficient (``builder.reference_term_ids``).
+
+Everything the fit did not touch stays as the scenario had it: a term left out by
+``calibrate --terms`` keeps its value, and the ``[model]`` table keeps its other entries
+(e.g. a coefficient set to 0 to switch a term's effect off); extra terms the fit added join
+``[model] terms``. Keeping rather than dropping errs on the safe side for planning (a grade
+term not fitted on flat recordings still charges hills). ``[model] discrepancy_rel_sd`` is the
+fitted model's run-to-run relative standard deviation (estimated from held-out recordings by
+``Calibrator``). ``write_calibrated_scenario`` checks that the file rebuilds every fitted
+coefficient before it replaces its target.
 """
 
 from __future__ import annotations
@@ -29,6 +39,7 @@ import tomli_w
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError, OrangeError
+from orange_plan.physics.builder import build_model
 from orange_plan.physics.model import EnergyModel
 from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
 
@@ -84,25 +95,38 @@ def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path) -> dic
         if dotted in physical:
             section, key = dotted.split(".")
             data.setdefault(section, {})[key] = max(0.0, physical[dotted])
-    old = data.get("model", {})
-    table: dict = {"terms": [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]}
-    if "prior_relative_stderr" in old:
-        table["prior_relative_stderr"] = old["prior_relative_stderr"]
+    table = dict(data.get("model", {}))
+    fitted_extras = [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]
+    table["terms"] = list(dict.fromkeys([*table.get("terms", []), *fitted_extras]))
+    table["discrepancy_rel_sd"] = model.discrepancy_rel_sd
     table.update({k: float(v) for k, v in theta.items()})
-    table["stderr"] = {k: float(v) for k, v in sd.items()}
+    table["stderr"] = {**table.get("stderr", {}), **{k: float(v) for k, v in sd.items()}}
     data["model"] = table
     return data
 
 
+def _check_rebuild(path: Path, model: EnergyModel) -> None:
+    """The scenario at ``path`` must rebuild every coefficient of ``model`` and its discrepancy."""
+    surface = next((t for t in model.terms if t.id == "surface_rolling"), None)
+    names = [] if surface is None else [c.removeprefix("rolling_kg_") for c in surface.coefficients]
+    rebuilt = build_model(load_scenario(path), names)
+    have = rebuilt.as_dict()
+    wrong = [n for n, v in model.as_dict().items() if have.get(n) != v]
+    if wrong or rebuilt.discrepancy_rel_sd != model.discrepancy_rel_sd:
+        raise OrangeError(f"the calibrated scenario does not rebuild the fitted model "
+                          f"(coefficients {wrong})")
+
+
 def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) -> Path:
-    """Write the calibrated scenario atomically; it is loaded back before it replaces ``path``.
+    """Write the calibrated scenario atomically; it is loaded back and must rebuild ``model``'s
+    coefficients and discrepancy (correlations are not stored) before it replaces ``path``.
 
     Raises
     ------
     InputError
         The output folder does not exist.
     OrangeError
-        The written file would not load (an internal failure).
+        The written file would not load or not rebuild the model (an internal failure).
     """
     path = Path(path)
     if not path.parent.exists():
@@ -111,7 +135,7 @@ def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) ->
     with atomic_path(path, suffix=".toml") as tmp:
         tmp.write_text(text, encoding="utf-8")
         try:
-            load_scenario(tmp)
+            _check_rebuild(tmp, model)
         except InputError as exc:
             raise OrangeError(f"the calibrated scenario does not load: {exc}") from None
     return path

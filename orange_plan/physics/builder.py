@@ -65,22 +65,30 @@ def reference_coefficients(scenario) -> dict[str, float]:
     }
 
 
-def reference_term_ids(scenario) -> list[str]:
-    """Terms of the reference model that are switched on for this scenario (absent = off)."""
+def reference_terms_by_physics(scenario) -> dict[str, bool]:
+    """Which reference terms the scenario's physical keys switch on (SPEC §7), in model order."""
     robot, anc = scenario.robot, scenario.ancillary
-    ids = ["ancillary"]
-    if anc.s1_W_per_Hz > 0:
-        ids.append("sensor_rate")
-    if robot.hover_W > 0:
-        ids.append("hover")
-    if robot.kind == "ground" or robot.crr > 0:
-        ids.append("rolling")
-    if robot.drag_coeff_kg_per_m > 0:
-        ids.append("aero_drag")
-    ids.append("grade")
-    if robot.turn_coeff_W_s_per_rad > 0:
-        ids.append("turning")
-    return ids
+    return {
+        "ancillary": True,
+        "sensor_rate": anc.s1_W_per_Hz > 0,
+        "hover": robot.hover_W > 0,
+        "rolling": robot.kind == "ground" or robot.crr > 0,
+        "aero_drag": robot.drag_coeff_kg_per_m > 0,
+        "grade": True,
+        "turning": robot.turn_coeff_W_s_per_rad > 0,
+    }
+
+
+def reference_term_ids(scenario) -> list[str]:
+    """Terms of the reference model that are switched on for this scenario (absent = off).
+
+    A term is on when its physical key says so, or when ``[model]`` sets its coefficient: a
+    value given is a term wanted (a calibrated scenario keeps a term whose fitted value has
+    no physical key, e.g. a negative drag coefficient).
+    """
+    given = scenario.model.coefficients
+    return [t for t, on in reference_terms_by_physics(scenario).items()
+            if on or any(c in given for c in TERMS[t].coefficients)]
 
 
 def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -> EnergyModel:
@@ -96,6 +104,8 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
     -----
     The covariance is diagonal: ``model.stderr`` entries where given, else
     ``prior_relative_stderr`` x |value| (an a priori uncertainty for uncalibrated values).
+    The run-to-run discrepancy is ``model.discrepancy_rel_sd`` (calibrated, or the a priori
+    default).
     """
     spec = scenario.model
     extras = list(spec.terms if extra_terms is None else extra_terms)
@@ -117,4 +127,5 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
             + close_match_hint(unknown[0], theta)
         )
     sd = [spec.stderr.get(n, spec.prior_relative_stderr * abs(v)) for n, v in theta.items()]
-    return EnergyModel(terms, theta, np.diag(np.square(sd)), omega=scenario.omega)
+    return EnergyModel(terms, theta, np.diag(np.square(sd)), omega=scenario.omega,
+                       discrepancy_rel_sd=spec.discrepancy_rel_sd)

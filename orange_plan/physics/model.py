@@ -47,6 +47,9 @@ class EnergyModel:
     theta : coefficient values by name (every coefficient of every term)
     cov : covariance of the coefficients in ``names`` order; default zeros
     omega : manoeuvring efficiency Omega (needed by ``regen`` only) [-]
+    discrepancy_rel_sd : run-to-run (model discrepancy) standard deviation of a whole run's
+        energy, relative to the predicted energy [-]: what the same motion draws differently
+        from run to run beyond what any coefficient values explain; default 0
 
     Notes
     -----
@@ -54,6 +57,8 @@ class EnergyModel:
     + sum_rate theta |yaw rate|`` with ``F = sum_force theta phi`` the lumped traction force.
     Path domain (SPEC §7): a step of length L at speed v costs ``P_power L / (v D)
     + max(0, F) L + theta_turn |heading change|``.
+    Predictive variance of a run's energy E with gradient g = dE/dtheta:
+    ``g' Cov g + (discrepancy_rel_sd E)^2`` (``predictive_variance_J2``).
     """
 
     def __init__(
@@ -62,6 +67,7 @@ class EnergyModel:
         theta: Mapping[str, float],
         cov: np.ndarray | None = None,
         omega: float = 1.0,
+        discrepancy_rel_sd: float = 0.0,
     ):
         ids = [t.id for t in terms]
         if len(set(ids)) != len(ids):
@@ -87,6 +93,10 @@ class EnergyModel:
         if not (0.0 < omega <= 1.0):
             raise InputError(f"EnergyModel: omega = {omega!r} must be in (0, 1]")
         self.omega = float(omega)
+        if not (np.isfinite(discrepancy_rel_sd) and discrepancy_rel_sd >= 0.0):
+            raise InputError(f"EnergyModel: discrepancy_rel_sd = {discrepancy_rel_sd!r} must be "
+                             ">= 0")
+        self.discrepancy_rel_sd = float(discrepancy_rel_sd)
 
     # --- bookkeeping ------------------------------------------------------------------
     @property
@@ -113,13 +123,19 @@ class EnergyModel:
     def with_theta(self, theta: Mapping[str, float], cov: np.ndarray | None = None) -> EnergyModel:
         """The same terms with new coefficients (and covariance, if given)."""
         merged = {**self.as_dict(), **theta}
-        return EnergyModel(self.terms, merged, self.cov if cov is None else cov, self.omega)
+        return EnergyModel(self.terms, merged, self.cov if cov is None else cov, self.omega,
+                           self.discrepancy_rel_sd)
+
+    def with_discrepancy(self, discrepancy_rel_sd: float) -> EnergyModel:
+        """The same model with another run-to-run relative standard deviation [-]."""
+        return EnergyModel(self.terms, self.as_dict(), self.cov, self.omega, discrepancy_rel_sd)
 
     def with_terms(self, terms: Sequence[Term], theta: Mapping[str, float]) -> EnergyModel:
         """A model with other terms; known coefficients keep their values and variances."""
         merged = {**{n: v for n, v in self.as_dict().items()}, **theta}
         names = [c for t in terms for c in t.coefficients]
-        model = EnergyModel(terms, {n: merged[n] for n in names}, None, self.omega)
+        model = EnergyModel(terms, {n: merged[n] for n in names}, None, self.omega,
+                            self.discrepancy_rel_sd)
         old = {n: i for i, n in enumerate(self.names)}
         for i, a in enumerate(model.names):
             for j, b in enumerate(model.names):
@@ -261,6 +277,29 @@ class EnergyModel:
         return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
 
     def energy_variance_J2(self, gradient: np.ndarray) -> np.ndarray:
-        """Variance ``g' Cov g`` of energies with gradients ``gradient`` (..., k) [J^2]."""
+        """Parameter part ``g' Cov g`` of energies with gradients ``gradient`` (..., k) [J^2]."""
         g = np.asarray(gradient, dtype=float)
         return np.einsum("...i,ij,...j->...", g, self.cov, g)
+
+    def predictive_variance_J2(self, gradient: np.ndarray, energy_J) -> np.ndarray:
+        """Predictive variance of runs' energies: what a confidence reserve is sized from [J^2].
+
+        Parameters
+        ----------
+        gradient : dE/dtheta of each run (..., k) [J per coefficient unit]
+        energy_J : predicted energy E of each run (broadcasts with ``gradient[..., 0]``) [J]
+
+        Returns
+        -------
+        ndarray
+            ``g' Cov g + (discrepancy_rel_sd E)^2``, shape of the broadcast [J^2].
+
+        Notes
+        -----
+        Two independent sources: the coefficients' uncertainty (their covariance) and the
+        run-to-run discrepancy, the spread of real runs around the best model (estimated from
+        held-out recordings at calibration time, ``Calibrator.discrepancy_rel_sd_``). A
+        ``confidence = p`` reserve is ``z_p`` times its square root (SPEC §2, §7).
+        """
+        disc = self.discrepancy_rel_sd * np.asarray(energy_J, dtype=float)
+        return self.energy_variance_J2(gradient) + disc**2

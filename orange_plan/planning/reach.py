@@ -54,14 +54,16 @@ def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
     ----------
     reserve : scenario ``mission.reserve`` (kind ``fraction``, ``energy_J`` or ``confidence``)
     energy_available_J : usable battery energy E_avail [J]
-    variance_J2 : variance ``g' Cov g`` of the round trip's energy (model parameter
-        uncertainty) [J^2]; any shape
+    variance_J2 : predictive variance of the round trip's energy,
+        ``EnergyModel.predictive_variance_J2(g, E)`` = ``g' Cov g + (discrepancy_rel_sd E)^2``
+        (coefficient uncertainty plus run-to-run discrepancy) [J^2]; any shape
 
     Notes
     -----
-    ``confidence = p``: the round-trip energy is taken as normal with the model's parameter
-    variance, so ``z_p sqrt(g' Cov g)`` above the planned energy is enough with probability p
-    (DESIGN.md: the reserve is sized by the model, not a magic margin).
+    ``confidence = p``: the round-trip energy is taken as normal with the model's predictive
+    variance, so ``z_p sqrt(variance)`` above the planned energy is enough with probability p
+    (DESIGN.md: the reserve is sized by the model, not a magic margin). ``bench calibration``
+    measures how often real runs exceed it.
     """
     var = np.asarray(variance_J2, float)
     if reserve.kind == "fraction":
@@ -269,7 +271,7 @@ def home_status(reach: Reachability) -> HomeStatus:
         path = evaluate_path(reach.exact, reach.roadmap.xy_m[reach.to_home.path(
             reach.start_index)], "roadmap energy")
         xy, energy_J, duration_s = path.xy_m, path.energy_J, path.duration_s
-    res = _reserve_of(reach, xy)
+    res = _reserve_of(reach, xy, energy_J)
     margin = reach.energy_available_J - reach.energy_used_J - energy_J - res
     reason = _infeasible_reason(margin, reach.time_check(duration_s), "the way home")
     return HomeStatus(reason is None, energy_J, res, margin, xy, duration_s, reason)
@@ -285,10 +287,12 @@ def _infeasible_reason(margin_J: float, time: TimeLimitCheck, what: str) -> str 
     return "; ".join(reasons) or None
 
 
-def _reserve_of(reach: Reachability, xy) -> float:
+def _reserve_of(reach: Reachability, xy, energy_J: float) -> float:
+    """Reserve of the path ``xy`` whose exact energy is ``energy_J`` [J]."""
     var = 0.0
     if reach.reserve.kind == "confidence":
-        var = reach.exact.model.energy_variance_J2(path_gradient(reach.exact, xy))
+        gradient = path_gradient(reach.exact, xy)
+        var = reach.exact.model.predictive_variance_J2(gradient, energy_J)
     return float(reserve_J(reach.reserve, reach.energy_available_J, var))
 
 
@@ -353,7 +357,7 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     # the segment leaving it), so the two legs add up to the round trip exactly.
     to_goal = float(cumulative[len(out) - 1])
     total = float(cumulative[-1])
-    res = _reserve_of(reach, trip)
+    res = _reserve_of(reach, trip, total)
     margin = reach.energy_available_J - reach.energy_used_J - total - res
     reason = _infeasible_reason(margin, reach.time_check(energy.duration_s), "round trip")
     return GoalResult(x, y, name, True, reason is None, to_goal, total - to_goal, res, margin,
@@ -419,7 +423,8 @@ def query_points(reach: Reachability, points_xy, k: int = 8) -> PointsReach:
         kk = j_in.shape[1]
         g = (reach.from_start.gradient[near[rows, bi]] + j_in.reshape(n, k, kk)[rows, bi]
              + j_out.reshape(n, k, kk)[rows, bo] + reach.to_home.gradient[near[rows, bo]])
-        var = fast.model.energy_variance_J2(g)
+        with np.errstate(invalid="ignore"):  # unreachable points: inf energy, nan variance
+            var = fast.model.predictive_variance_J2(g, to_goal + to_home)
     res = reserve_J(reach.reserve, reach.energy_available_J, var)
     with np.errstate(invalid="ignore"):
         margin = reach.energy_available_J - reach.energy_used_J - to_goal - to_home - res

@@ -257,6 +257,8 @@ def surface_samples(world, n: int, seed: int = 0) -> np.ndarray:
     counts = np.floor(n * areas / areas.sum()).astype(int)
     out = []
     for surface, count in zip(cheap, counts):
+        if count == 0:  # a small surface among large ones gets no share of a small n
+            continue
         x0, y0, x1, y1 = surface.polygon.bounds
         got, tries = [], 0
         while sum(len(g) for g in got) < count and tries < 20:

@@ -640,11 +640,13 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
 
 def _variance(reach: Reachability, energy_J, gradient, always: bool = False) -> np.ndarray:
     """Predictive variance of an energy still to be drawn [J^2] (zero unless the reserve is
-    a confidence, or ``always``): the model's parameter covariance along ``gradient``."""
+    a confidence, or ``always``): the coefficients' covariance along ``gradient`` plus the
+    run-to-run discrepancy (``EnergyModel.predictive_variance_J2``, as every reserve)."""
     energy = np.asarray(energy_J, float)
     if reach.reserve.kind != "confidence" and not always:
         return np.zeros(energy.shape)
-    return np.asarray(reach.exact.model.energy_variance_J2(gradient), float).reshape(energy.shape)
+    var = reach.exact.model.predictive_variance_J2(gradient, energy)
+    return np.asarray(var, float).reshape(energy.shape)
 
 
 # --- summary -------------------------------------------------------------------------------

@@ -2,7 +2,10 @@
 
 The prediction uses nothing but ``EnergyModel.power_W`` on the recording's per-sample
 MotionState (``motion_state``), so it is the same physics the planner uses. Energies are
-trapezoid integrals over time with the recording's gaps skipped on both sides.
+trapezoid integrals over time with the recording's gaps skipped on both sides. The predicted
+energy's standard deviation is the model's predictive one (``EnergyModel.
+predictive_variance_J2``: coefficient covariance along the run's energy gradient, plus the
+run-to-run discrepancy), the same quantity a ``confidence`` reserve is sized from.
 """
 
 from __future__ import annotations
@@ -12,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from orange_plan.physics.model import EnergyModel
-from orange_plan.telemetry.recording import Recording, cumulative_J, motion_state
+from orange_plan.physics.state import MotionState
+from orange_plan.telemetry.recording import Recording, cumulative_J, integrate_J, motion_state
 
 
 @dataclass(frozen=True)
@@ -25,6 +29,7 @@ class Replay:
     t_s : sample times [s]
     recorded_W, predicted_W : battery power per sample [W]
     energy_recorded_J, energy_predicted_J : integrals over the run, gaps skipped [J]
+    energy_predicted_sd_J : predictive standard deviation of the predicted energy [J]
     energy_error_pct : ``100 (predicted - recorded) / |recorded|`` (signed: > 0 over-predicts) [%]
     rmse_W : root-mean-square of ``predicted - recorded`` over the samples [W]
     duration_s : first to last sample [s]
@@ -39,12 +44,14 @@ class Replay:
     energy_error_pct: float
     rmse_W: float
     duration_s: float
+    energy_predicted_sd_J: float
 
     def to_dict(self) -> dict:
         """SPEC §5 keys of ``predict --json`` plus the sample count and mean powers."""
         return {
             "energy_recorded_J": self.energy_recorded_J,
             "energy_predicted_J": self.energy_predicted_J,
+            "energy_predicted_sd_J": self.energy_predicted_sd_J,
             "energy_error_pct": self.energy_error_pct,
             "rmse_W": self.rmse_W,
             "duration_s": self.duration_s,
@@ -55,12 +62,47 @@ class Replay:
         }
 
 
-def predicted_power_W(recording: Recording, model: EnergyModel, world=None,
-                      sensor_rate_Hz: float = 0.0) -> np.ndarray:
-    """Battery power the model predicts at every sample of a recording [W] (n,)."""
-    state = motion_state(recording, world, sensor_rate_Hz=sensor_rate_Hz)
-    power = np.asarray(model.power_W(state), dtype=float)
-    return np.broadcast_to(power, (len(recording.frame),)).astype(float)
+@dataclass(frozen=True)
+class RunEnergy:
+    """A model's prediction of one recording's whole-run energy.
+
+    Attributes
+    ----------
+    power_W : predicted battery power per sample [W] (n,)
+    energy_J : its integral over the run, gaps skipped [J]
+    sd_J : predictive standard deviation of ``energy_J`` [J]
+    param_sd_J : its coefficient-covariance part alone, ``sqrt(g' Cov g)`` [J]
+    """
+
+    power_W: np.ndarray
+    energy_J: float
+    sd_J: float
+    param_sd_J: float
+
+
+def run_energy(recording: Recording, model: EnergyModel, state: MotionState) -> RunEnergy:
+    """Predicted whole-run energy of a recording's motion and its standard deviation.
+
+    Parameters
+    ----------
+    recording : gives the times and gaps
+    model : the energy model
+    state : per-sample motion state of the recording (``motion_state`` or
+        ``identify.calibrate.recording_state``)
+
+    Returns
+    -------
+    RunEnergy
+        ``E = integral P dt``; ``sd = sqrt(g' Cov g + (discrepancy_rel_sd E)^2)`` with
+        ``g = integral dP/dtheta dt`` (``EnergyModel.predictive_variance_J2``).
+    """
+    n = len(recording.frame)
+    power = np.broadcast_to(np.asarray(model.power_W(state), dtype=float), (n,)).astype(float)
+    jac = np.broadcast_to(model.power_jacobian(state), (n, len(model.names)))
+    energy = integrate_J(recording, power)
+    gradient = np.array([integrate_J(recording, column) for column in jac.T])
+    sd = float(np.sqrt(model.predictive_variance_J2(gradient, energy)))
+    return RunEnergy(power, energy, sd, float(np.sqrt(model.energy_variance_J2(gradient))))
 
 
 def replay(recording: Recording, model: EnergyModel, world=None,
@@ -79,13 +121,14 @@ def replay(recording: Recording, model: EnergyModel, world=None,
     Replay
     """
     recorded = recording.frame["power_W"].to_numpy(float)
-    predicted = predicted_power_W(recording, model, world, sensor_rate_Hz)
+    state = motion_state(recording, world, sensor_rate_Hz=sensor_rate_Hz)
+    predicted = run_energy(recording, model, state)
     e_rec = float(cumulative_J(recording, recorded)[-1])
-    e_pred = float(cumulative_J(recording, predicted)[-1])
+    e_pred = predicted.energy_J
     error_pct = 100.0 * (e_pred - e_rec) / abs(e_rec) if e_rec != 0 else float("nan")
-    rmse = float(np.sqrt(np.mean((predicted - recorded) ** 2)))
-    return Replay(recording.source, recording.t_s, recorded, predicted, e_rec, e_pred,
-                  error_pct, rmse, recording.duration_s)
+    rmse = float(np.sqrt(np.mean((predicted.power_W - recorded) ** 2)))
+    return Replay(recording.source, recording.t_s, recorded, predicted.power_W, e_rec, e_pred,
+                  error_pct, rmse, recording.duration_s, predicted.sd_J)
 
 
 def replay_context(recording: Recording, ctx) -> Replay:
