@@ -114,19 +114,30 @@ def test_stranding_is_detected(tiny):
     assert flight.coverage_m2 <= ctx.world.map.free_space.area
 
 
-def test_truths_within_the_covariance(tiny):
+def test_truths_within_the_covariance_and_the_run_to_run_discrepancy(tiny):
+    from dataclasses import replace
+
+    from orange_plan.sim.perturb import Discrepancy
+
     ctx = load_context(tiny)
-    truths = calibration_truths(ctx, 400, seed=3)
+    truths = calibration_truths(ctx, 400, seed=3, discrepancy=NONE)
     mult = np.array([list(truth_multipliers(ctx, t).values()) for t in truths])
     rel = np.sqrt(np.diag(ctx.model.cov)) / np.abs(ctx.model.theta)
     nonzero = ctx.model.theta != 0
     assert np.allclose(mult.mean(axis=0), 1.0, atol=0.03)
     assert np.allclose(mult.std(axis=0), rel[nonzero], rtol=0.2)
     assert (mult >= 0).all()
-    again = calibration_truths(ctx, 2, seed=3)
+    again = calibration_truths(ctx, 2, seed=3, discrepancy=NONE)
     assert again[0] == truths[0]  # seeded
-    assert calibration_truths(ctx, 1, discrepancy=NONE)[0].roughness_crr_std == 0
-    assert truths[0].roughness_crr_std > 0  # ground robot: crr roughness
+    assert truths[0].roughness_crr_std == 0
+    # the run factor alone (no coefficient covariance): one common multiplier per truth
+    exact = replace(ctx, model=ctx.model.with_theta({}, np.zeros_like(ctx.model.cov)))
+    runs = calibration_truths(exact, 400, seed=4, discrepancy=Discrepancy(run_rel_sd=0.2))
+    m = np.array([list(truth_multipliers(exact, t).values()) for t in runs])
+    assert np.allclose(m, m[:, :1])
+    assert m[:, 0].std() == pytest.approx(0.2, rel=0.15) and m.min() > 0
+    default = calibration_truths(ctx, 1, seed=3)[0]
+    assert default.roughness_crr_std > 0  # ground robot: crr roughness
     with pytest.raises(InputError, match="must be >= 1"):
         calibration_truths(ctx, 0)
 

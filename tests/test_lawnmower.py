@@ -80,9 +80,25 @@ def test_lanes_are_at_most_two_radii_apart_and_alternate(tmp_path):
     order = boustrophedon(lanes)
     assert order[0][1, 0] > order[0][0, 0]  # lane 0 eastwards
     assert order[2][1, 0] < order[2][0, 0] and order[2][0, 1] == pytest.approx(3.0)  # back west
+    other_side = sweep_lanes(ctx.world, grid, 1.0, 180.0)  # same lanes, swept from the north
+    assert [lane[0][0, 1] for lane in other_side] == y[::-1]
     north = sweep_lanes(ctx.world, grid, 1.0, 90.0)
     d = north[0][0][1] - north[0][0][0]
     assert abs(d[0]) < 1e-9 and d[1] > 0  # lanes run north at 90 deg
+
+
+def test_joined_path_marks_its_lanes(yard):
+    from orange_plan.planning.lawnmower import Detours, join_pieces
+
+    ctx, reach = yard
+    r = ctx.scenario.mission.sensor_radius_m
+    pieces = boustrophedon(sweep_lanes(ctx.world, coverage_grid(ctx.world, r), r, 90.0))
+    rm = reach.roadmap
+    xy, lane, driven, _ = join_pieces(ctx.world.home_xy_m, pieces,
+                                      Detours(ctx.world, rm.xy_m, rm.src, rm.dst))
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    assert lane.shape == seg.shape and driven == len(pieces)
+    assert seg[lane].sum() == pytest.approx(sum(np.hypot(*(p[1] - p[0])) for p in pieces))
 
 
 def test_best_angle_runs_along_the_long_side(tmp_path):

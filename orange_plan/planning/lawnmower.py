@@ -29,9 +29,9 @@ from orange_plan.errors import PlanningError
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
 from orange_plan.planning.paths import clean_polyline
 
-DEFAULT_ANGLES_DEG = tuple(float(a) for a in range(0, 180, 10))
-"""Sweep angles tried by ``best_sweep_angle_deg`` (lane direction, counter-clockwise from
-east) [deg]; the best one is refined by +-5 deg."""
+DEFAULT_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 10))
+"""Sweep angles tried by ``best_energy_sweep_angle_deg`` [deg]; the best one is refined by
++-5 deg. Angles a and a + 180 have the same lanes, swept from opposite sides."""
 
 K_ATTACH = 12
 """Roadmap vertices a detour's end points are joined to (collision-checked)."""
@@ -44,7 +44,8 @@ class Lawnmower:
     Attributes
     ----------
     xy_m : vertices, shape (n, 2), first and last = home [m]
-    angle_deg : lane direction, counter-clockwise from east [deg]
+    angle_deg : lane direction, counter-clockwise from east [deg]; >= 180: the lanes of
+        ``angle_deg - 180`` swept from the other side (``sweep_lanes``)
     spacing_m : largest distance between lanes, 2 x the sensor radius [m]
     speed_mps : commanded speed on every segment (the cruise speed) [m/s]
     n_lanes : lane pieces driven
@@ -80,12 +81,14 @@ def sweep_lanes(world, grid, sensor_radius_m: float, angle_deg: float):
     world : World
     grid : ``coverage.coverage_grid(world, r)``
     sensor_radius_m : footprint radius r [m] (lanes at most 2 r apart)
-    angle_deg : lane direction, counter-clockwise from east [deg]
+    angle_deg : lane direction, counter-clockwise from east [deg]; in [0, 180) the lanes are
+        swept in the direction of the normal ``n = (-sin a, cos a)``, in [180, 360) the same
+        lanes against it (starting from the other side)
 
     Returns
     -------
     list of lanes in sweep order; each lane a list of pieces (2, 2) [m], ordered and oriented
-    along the lane direction ``u = (cos a, sin a)``.
+    along the lane direction ``u = (cos a, sin a)`` (a taken modulo 180).
 
     Notes
     -----
@@ -108,7 +111,7 @@ def sweep_lanes(world, grid, sensor_radius_m: float, angle_deg: float):
         k = np.flatnonzero(offset == off)
         k = k[np.argsort(start[k] @ u)]
         lanes.append([np.array([start[i], end[i]]) for i in k])
-    return lanes
+    return lanes[::-1] if float(angle_deg) % 360.0 >= 180.0 else lanes
 
 
 def boustrophedon(lanes) -> list[np.ndarray]:
@@ -206,17 +209,28 @@ class Detours:
 # --- the path ------------------------------------------------------------------------------
 
 
-def straight_route(home_xy, pieces) -> np.ndarray:
-    """home -> pieces (joined by straight segments) -> home, without collision checks [m]."""
-    body = np.concatenate(pieces) if pieces else np.empty((0, 2))
+def straight_route(home_xy, pieces) -> tuple[np.ndarray, np.ndarray]:
+    """home -> pieces (joined by straight segments) -> home, without collision checks.
+
+    Returns ``(xy, lane)``: vertices (n, 2) [m] and, per segment (n - 1,), True on a lane.
+    """
     home = np.asarray(home_xy, float)[None]
-    return clean_polyline(np.vstack([home, body, home]))
+    body = np.concatenate(pieces) if pieces else np.empty((0, 2))
+    xy = np.vstack([home, body, home])
+    lane = np.zeros(len(xy) - 1, dtype=bool)
+    lane[1:-1:2] = True  # home->a0 join, a0->b0 lane, b0->a1 join, ...
+    return xy, lane
 
 
-def join_pieces(home_xy, pieces, detours: Detours) -> tuple[np.ndarray, int, int]:
+def join_pieces(home_xy, pieces, detours: Detours):
     """home -> pieces -> home with collision-free joins (straight, else a roadmap detour).
 
-    A piece that cannot be reached is skipped. Returns ``(xy, pieces driven, detours)``.
+    A piece that cannot be reached is skipped.
+
+    Returns
+    -------
+    (xy, lane, driven, n_detours): vertices (n, 2) [m]; per segment (n - 1,), True on a lane;
+    pieces driven; joins that needed a detour.
 
     Raises
     ------
@@ -224,7 +238,8 @@ def join_pieces(home_xy, pieces, detours: Detours) -> tuple[np.ndarray, int, int
         If the way back home cannot be found.
     """
     home = np.asarray(home_xy, float)
-    out, cur, driven, n_detours = [home[None]], home, 0, 0
+    out, flags = [home[None]], [np.zeros(1, bool)]
+    cur, driven, n_detours = home, 0, 0
     if pieces:
         starts = np.array([p[0] for p in pieces])
         prev = np.vstack([home, np.array([p[1] for p in pieces[:-1]])]) if len(pieces) > 1 \
@@ -239,12 +254,19 @@ def join_pieces(home_xy, pieces, detours: Detours) -> tuple[np.ndarray, int, int
                 continue
             n_detours += len(link) > 2
         out += [link[1:], piece[1:]]
+        flags += [np.zeros(len(link) - 1, bool), np.ones(1, bool)]
         cur, driven = piece[1], driven + 1
     back = detours.path(cur, home)
     if back is None:
         raise PlanningError(f"no way home from ({cur[0]:g}, {cur[1]:g}) over the roadmap")
     out.append(back[1:])
-    return clean_polyline(np.vstack(out)), driven, n_detours
+    flags.append(np.zeros(len(back) - 1, bool))
+    xy, flag = np.vstack(out), np.concatenate(flags)
+    keep = np.r_[True, np.hypot(*np.diff(xy, axis=0).T) > 1e-9]  # zero-length segments
+    xy, flag = xy[keep], flag[keep]
+    if len(xy) < 2:
+        xy, flag = np.vstack([xy, xy]), np.r_[flag, False]
+    return xy, flag[1:], driven, n_detours
 
 
 def cumulative_energy_time(ctx, cost, xy) -> tuple[np.ndarray, np.ndarray]:
@@ -261,13 +283,32 @@ def cumulative_energy_time(ctx, cost, xy) -> tuple[np.ndarray, np.ndarray]:
     return np.r_[0.0, np.cumsum(seg.total_J + turn)], np.r_[0.0, np.cumsum(seg.mission_time_s)]
 
 
-def _covered_before_return(ctx, cost, xy, budget_J: float, e_per_m_J: float) -> tuple[float, float]:
-    """(lane length driven before the robot must turn home, total energy) on the planning model.
+SCORE_STEP_M = 10.0
+"""Longest segment when scoring an angle: the turn point is found to within this [m]."""
 
-    The turn point is the first vertex where energy used + straight-line energy home reaches
-    ``budget_J`` (or mission time + time home reaches the time limit); a cheap, rule-like
-    stand-in to compare sweep angles, not what is flown.
+
+def densify(xy, max_step_m: float) -> np.ndarray:
+    """The polyline with every segment cut into pieces no longer than ``max_step_m`` [m]."""
+    xy = np.asarray(xy, float)
+    d = np.hypot(*np.diff(xy, axis=0).T)
+    n = np.maximum(1, np.ceil(d / max_step_m).astype(int))
+    seg = np.repeat(np.arange(len(d)), n)
+    t = (np.arange(seg.size) - np.repeat(np.cumsum(n) - n, n)) / n[seg]
+    return np.vstack([xy[seg] + t[:, None] * (xy[seg + 1] - xy[seg]), xy[-1:]])
+
+
+def _covered_before_return(ctx, cost, xy, free, budget_J: float,
+                           e_per_m_J: float) -> tuple[float, float]:
+    """(area sensed before the robot must turn home [m^2], total energy [J]) on the planning
+    model.
+
+    The turn point is the first vertex (of the path cut into ``SCORE_STEP_M`` pieces) where
+    energy used + straight-line energy home reaches ``budget_J``, or mission time + time home
+    reaches the time limit: a cheap, rule-like stand-in to compare sweep angles, not what is
+    flown. The area is the path's ``r`` buffer up to there (4 segments per quarter circle)
+    within ``free`` (the free space, prepared).
     """
+    xy = densify(xy, SCORE_STEP_M)
     energy, t = cumulative_energy_time(ctx, cost, xy)
     home_m = np.hypot(*(xy - xy[0]).T)
     over = energy + e_per_m_J * home_m >= budget_J
@@ -275,22 +316,27 @@ def _covered_before_return(ctx, cost, xy, budget_J: float, e_per_m_J: float) -> 
     if limit is not None:
         over |= t + home_m / (cost.speed_mps * ctx.duty_cycle) >= limit
     stop = int(np.argmax(over)) if over.any() else len(xy) - 1
-    lengths = np.hypot(*np.diff(xy, axis=0).T)
-    return float(np.sum(lengths[:stop])), float(energy[-1])
+    r = ctx.scenario.mission.sensor_radius_m
+    prefix = xy[: max(stop, 1) + 1]
+    area = shapely.LineString(prefix).buffer(r, quad_segs=4).intersection(free).area
+    return float(area), float(energy[-1])
 
 
 def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
-                                refine_deg: float = 5.0) -> float:
-    """The sweep angle that drives most lane length before the robot must turn home.
+                                refine_deg: float = 5.0, detours: Detours | None = None,
+                                rescore: int = 3) -> float:
+    """The sweep angle that senses most before the robot must turn home.
 
     Scored on the planning model with straight joins (``_covered_before_return``) and a
     budget of the usable energy minus the scenario's reserve when it is a fixed one (a
     confidence reserve is not known before the path; none is kept back then). Ties (the whole
     area fits) go to the cheaper path. Candidates: ``angles_deg`` and
-    ``coverage.best_sweep_angle_deg`` (fewest lane pieces); the best is refined by
-    ``+- refine_deg``. On a windy or hilly map this is the angle whose lanes cost least (along
-    the wind, along the contours), which the fewest-turns angle ignores: the baseline gets its
-    best sweep.
+    ``coverage.best_sweep_angle_deg`` (fewest lane pieces), each swept from either side
+    (a and a + 180); the best is refined by ``+- refine_deg``. With ``detours``, the
+    ``rescore`` best angles are scored again on the path with its real joins (roadmap detours
+    round obstacles instead of straight lines through them). On a windy or hilly map this is
+    the angle whose lanes cost least (along the wind, along the contours), which the
+    fewest-turns angle ignores: the baseline gets its best sweep.
     """
     from orange_plan.physics.range import simplified_range
     from orange_plan.planning.coverage import best_sweep_angle_deg
@@ -305,21 +351,31 @@ def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
     home = ctx.world.home_xy_m
     r = ctx.scenario.mission.sensor_radius_m
 
-    def score(angle):
+    free = ctx.world.map.free_space
+    shapely.prepare(free)
+
+    def score(angle, joined: bool = False):
         pieces = boustrophedon(sweep_lanes(ctx.world, grid, r, angle))
         if not pieces:
             return (0.0, 0.0)
-        covered, energy = _covered_before_return(ctx, cost, straight_route(home, pieces),
-                                                 budget, e_per_m)
-        return (round(covered, 3), -energy)
+        if joined:
+            xy = join_pieces(home, pieces, detours)[0]
+        else:
+            xy = straight_route(home, pieces)[0]
+        covered, energy = _covered_before_return(ctx, cost, xy, free, budget, e_per_m)
+        return (round(covered, 1), -energy)
 
     fewest_turns = best_sweep_angle_deg(ctx.world, r)
-    scores = {float(a) % 180.0: score(a) for a in (*angles_deg, fewest_turns)}
+    scores = {float(a) % 360.0: score(a) for a in (*angles_deg, fewest_turns,
+                                                    fewest_turns + 180.0)}
     best = max(scores, key=scores.get)
     if refine_deg:
         for a in (best - refine_deg, best + refine_deg):
-            scores[a % 180.0] = score(a % 180.0)
+            scores[a % 360.0] = score(a % 360.0)
         best = max(scores, key=scores.get)
+    if detours is not None and rescore > 0:
+        top = sorted(scores, key=scores.get, reverse=True)[:rescore]
+        best = max(top, key=lambda a: score(a, joined=True))
     return float(best)
 
 
@@ -352,13 +408,14 @@ def plan_lawnmower(ctx, reach=None, angle_deg: float | None = None, n_vertices: 
         reach = prepare_reach(ctx, n_vertices=n_vertices, seed=seed)
     r = ctx.scenario.mission.sensor_radius_m
     grid = coverage_grid(ctx.world, r)
+    rm = reach.roadmap
+    detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
     if angle_deg is None:
-        angle_deg = best_energy_sweep_angle_deg(ctx, reach.fast, grid, angles_deg)
+        angle_deg = best_energy_sweep_angle_deg(ctx, reach.fast, grid, angles_deg,
+                                                detours=detours)
     pieces = boustrophedon(sweep_lanes(ctx.world, grid, r, angle_deg))
     if not pieces:
         raise PlanningError(f"no lane fits in the free workspace (sensor radius {r:g} m)")
-    rm = reach.roadmap
-    detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
-    xy, driven, n_detours = join_pieces(ctx.world.home_xy_m, pieces, detours)
-    return Lawnmower(xy, float(angle_deg) % 180.0, 2.0 * r, float(reach.exact.speed_mps), driven,
+    xy, _, driven, n_detours = join_pieces(ctx.world.home_xy_m, pieces, detours)
+    return Lawnmower(xy, float(angle_deg) % 360.0, 2.0 * r, float(reach.exact.speed_mps), driven,
                      n_detours, time.perf_counter() - t0)

@@ -3,13 +3,22 @@
 A benchmark of plans with a guaranteed return must fly them in a world the planner does not
 know exactly, but one it *could* be: each truth draws the model's lumped coefficients from
 their covariance (``EnergyModel.theta``, ``EnergyModel.cov``: the calibration's, or the
-a-priori ``prior_relative_stderr`` one) and adds a small run-to-run discrepancy that no
-coefficient explains (``DISCREPANCY``):
+a-priori ``prior_relative_stderr`` one), scales them all by one run factor drawn from the
+model's run-to-run discrepancy (``EnergyModel.discrepancy_rel_sd``: the relative standard
+deviation of a whole run's energy beyond any coefficient values, calibrated or a priori), and
+adds small zero-mean effects the simulator has and the model does not (``DISCREPANCY``):
 
-    theta_true ~ N(theta, Cov), truncated at 0 (a coefficient never changes sign)
+    theta_true = m_run x theta_draw
+    theta_draw ~ N(theta, Cov), truncated at 0 (a coefficient never changes sign)
+    m_run ~ N(1, discrepancy_rel_sd^2), truncated at 0: every term is linear in its
+        coefficient and the no-recovery clip is scale-free, so the run's power, hence its
+        energy, scales by m_run exactly
     wind gusts: Ornstein-Uhlenbeck, std = gust_fraction x mean wind speed, tau = gust_tau_s
     terrain roughness: crr perturbation, std = roughness_fraction x default crr, correlated
         over roughness_length_m (ground robots only)
+
+The truth's energy is then distributed as the reserve assumes (``predictive_variance_J2``:
+``g' Cov g + (discrepancy_rel_sd E)^2``), plus the small gust/roughness effects.
 
 Everything else is the scenario's (battery, map, mean wind): the truth has the usable energy
 the planner assumes. ``Truth`` objects are what ``sim.simulator.simulate`` (and
@@ -36,18 +45,22 @@ class Discrepancy:
     gust_tau_s : gust correlation time [s]
     roughness_fraction : crr perturbation std / default crr [-]
     roughness_length_m : its correlation length along the path [m]
+    run_rel_sd : relative std of the whole-run factor m_run [-]; None: the model's
+        ``discrepancy_rel_sd``
     """
 
     gust_fraction: float = 0.1
     gust_tau_s: float = 10.0
     roughness_fraction: float = 0.05
     roughness_length_m: float = 5.0
+    run_rel_sd: float | None = None
 
 
 DISCREPANCY = Discrepancy()
-"""Default discrepancy: gusts of 10 % of the mean wind, crr roughness of 5 % (zero-mean)."""
+"""Default discrepancy: the model's run-to-run factor, gusts of 10 % of the mean wind, crr
+roughness of 5 % (zero-mean)."""
 
-NONE = Discrepancy(0.0, 10.0, 0.0, 5.0)
+NONE = Discrepancy(0.0, 10.0, 0.0, 5.0, 0.0)
 """No discrepancy: coefficients only."""
 
 
@@ -67,6 +80,17 @@ def draw_coefficients(model, n: int, rng) -> list[dict[str, float]]:
     return [dict(zip(model.names, map(float, d))) for d in draws]
 
 
+def run_factors(rel_sd: float, n: int, rng) -> np.ndarray:
+    """``n`` whole-run factors from N(1, rel_sd^2), truncated at 0 (resampled) [-]."""
+    m = 1.0 + rel_sd * rng.standard_normal(n)
+    for _ in range(10):
+        bad = m <= 0
+        if not bad.any():
+            break
+        m[bad] = 1.0 + rel_sd * rng.standard_normal(int(bad.sum()))
+    return np.maximum(m, 1e-3)
+
+
 def calibration_truths(ctx, n: int, seed: int = 0,
                        discrepancy: Discrepancy = DISCREPANCY) -> list[Truth]:
     """``n`` truths within the calibration uncertainty of ``ctx.model`` (seeded).
@@ -80,7 +104,8 @@ def calibration_truths(ctx, n: int, seed: int = 0,
 
     Returns
     -------
-    list of Truth, each with ``coefficients`` overrides and the discrepancy's gusts/roughness
+    list of Truth, each with ``coefficients`` overrides (covariance draw x run factor) and the
+    discrepancy's gusts/roughness
 
     Raises
     ------
@@ -95,9 +120,13 @@ def calibration_truths(ctx, n: int, seed: int = 0,
     wind = Wind(env.wind_speed_mps, env.wind_from_deg, gust, discrepancy.gust_tau_s, True)
     ground = ctx.scenario.robot.kind == "ground"
     rough = discrepancy.roughness_fraction * ctx.world.default_crr if ground else 0.0
-    return [Truth(coefficients=c, wind=wind, roughness_crr_std=rough,
-                  roughness_length_m=discrepancy.roughness_length_m)
-            for c in draw_coefficients(ctx.model, n, rng)]
+    draws = draw_coefficients(ctx.model, n, rng)
+    rel = (getattr(ctx.model, "discrepancy_rel_sd", 0.0) if discrepancy.run_rel_sd is None
+           else discrepancy.run_rel_sd)
+    factors = run_factors(rel, n, rng) if rel > 0 else np.ones(n)
+    return [Truth(coefficients={k: v * m for k, v in c.items()}, wind=wind,
+                  roughness_crr_std=rough, roughness_length_m=discrepancy.roughness_length_m)
+            for c, m in zip(draws, factors)]
 
 
 def truth_multipliers(ctx, truth: Truth) -> dict[str, float]:
