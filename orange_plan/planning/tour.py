@@ -203,12 +203,29 @@ def tour_speed_mps(ctx, start: StartState) -> float:
     if limit is None:
         return v_opt
     sc = ctx.scenario
-    left = sc.battery.usable_J - start.energy_used_J
+    left = _motion_energy_guess(ctx, start)
     speeds = np.linspace(v_opt, sc.robot.v_max_mps, 200)
     state = flat_state(speeds, ctx.world.default_crr, ctx.sensor_rate_Hz)
     per_m = np.asarray(ctx.model.segment_energy(state, 1.0, ctx.duty_cycle).total_J, float)
     dist = np.minimum(left / per_m, speeds * ctx.duty_cycle * max(limit - start.time_s, 0.0))
     return float(speeds[int(np.argmax(dist))])
+
+
+def _motion_energy_guess(ctx, start: StartState) -> float:
+    """Energy left for driving once the reserve is set aside, guessed before any path exists
+    [J]: a confidence reserve is taken as ``z_p`` times the run-to-run spread of that energy
+    (the coefficient part, path-dependent, is left to the exact check)."""
+    from statistics import NormalDist
+
+    sc = ctx.scenario
+    available = sc.battery.usable_J
+    left = available - start.energy_used_J
+    res = sc.mission.reserve
+    if res.kind == "fraction":
+        return left - res.value * available
+    if res.kind == "energy_J":
+        return left - res.value
+    return left / (1.0 + NormalDist().inv_cdf(res.value) * ctx.model.discrepancy_rel_sd)
 
 
 def _time_left_s(ctx, start: StartState) -> float:
@@ -555,7 +572,7 @@ def _speeds(ctx, xy: np.ndarray, start: StartState):
     try:
         problem = speed_problem(ctx, pieces, time_limit_s=limit)
         problem = replace(problem, piece_v_max_mps=_lane_caps(ctx, xy))
-        profile = SpeedSolver(ctx.model).solve(problem)
+        profile = SpeedSolver(ctx.model).solve(problem, model_world=ctx.world)
     except (InputError, PlanningError):
         return None
     return np.asarray(profile.speed_mps, float)
