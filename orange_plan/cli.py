@@ -15,10 +15,51 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from typer.core import TyperGroup
+
+try:  # typer >= 0.20 carries its own copy of click
+    from typer._click import exceptions as click_exc
+except ImportError:  # pragma: no cover - older typer runs on click itself
+    from click import exceptions as click_exc
 
 from orange_plan.errors import InputError, OrangeError
 
+
+
+class OneLineErrors(TyperGroup):
+    """The root command group: the CLI's own argument errors (unknown option, missing
+    argument, bad value) get the same one line and exit code 2 as every other bad input,
+    instead of click/typer's multi-line box."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, False, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except click_exc.NoArgsIsHelpError as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click_exc.UsageError as exc:
+            fail(f"{_subcommand(exc.ctx)}{exc.format_message()} (see --help)", 2)
+        except click_exc.ClickException as exc:
+            fail(exc.format_message(), exc.exit_code)
+        except typer.Abort:
+            fail("aborted", 1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _subcommand(ctx) -> str:
+    """``"bench reach: "`` for an error inside a subcommand, ``""`` at the root."""
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name)
+        ctx = ctx.parent
+    return " ".join(reversed(names)) + ": " if names else ""
+
+
 app = typer.Typer(
+    cls=OneLineErrors,
     add_completion=False,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
@@ -76,16 +117,21 @@ def _finite(obj):
     return obj
 
 
-@app.callback()
-def _root(
-    version: Annotated[bool, typer.Option("--version", help="Print the version and exit.")] = False,
-) -> None:
-    """ORangE mission planner for battery-powered robots (ground, aerial, marine)."""
-    if version:
+def _print_version(value: bool) -> None:
+    if value:
         from orange_plan import __version__
 
         out.print(__version__)
         raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option(
+        "--version", help="Print the version and exit.", callback=_print_version,
+        is_eager=True)] = False,
+) -> None:
+    """ORangE mission planner for battery-powered robots (ground, aerial, marine)."""
 
 
 def main() -> None:

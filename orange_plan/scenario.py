@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
+from orange_plan.paths import require_file
 from orange_plan.physics.battery import Battery, Losses
 from orange_plan.physics.terms import EXTRA_TERM_IDS
 from orange_plan.physics.wind import wind_vector_mps
@@ -218,8 +219,7 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def read_toml(path: Path, kind: str, error: type[InputError] = ScenarioError) -> dict:
     """Parse a TOML file; a missing file or bad TOML is one ``error`` line naming the file."""
-    if not path.is_file():
-        raise error(f"{path}: {kind} file not found")
+    require_file(path, kind, error)
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -95,6 +95,10 @@ def online_cmd(scenarios: ScenariosOpt = REPO / "scenarios", seeds: SeedsOpt = 3
     from orange_plan.identify.bench import BENCH_TRUTHS, online_benchmark, summarise
 
     names = _split(only) or list(BENCH_TRUTHS)
+    if png is not None:
+        from orange_plan.paths import check_output
+
+        check_output(png, "--png", [".png"])
     if seeds < 1:
         raise InputError(f"--seeds = {seeds} must be >= 1")
     with _progress(len(names) * seeds, "simulating", as_json) as tick:

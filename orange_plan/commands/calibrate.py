@@ -40,6 +40,10 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
     from orange_plan.identify.scenario_out import physical_values, write_calibrated_scenario
     from orange_plan.telemetry.recording import load_recording
 
+    from orange_plan.paths import check_output
+
+    if output is not None:
+        check_output(output, "-o", [".toml"], inputs=[*recordings, scenario])
     ctx = load_context(scenario)
     recs = [load_recording(p) for p in recordings]
     cal = Calibrator(terms=_split(terms), fixed=_split(fixed) or (), use_prior=not no_prior,

@@ -29,7 +29,10 @@ def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
         write_recording,
     )
 
-    recording_extension(output)  # refuse a bad output name before the (possibly long) import
+    from orange_plan.paths import check_output
+
+    check_output(output, "-o", inputs=[log])  # before the (possibly long) import
+    recording_extension(output)
     frame, used = read_log(log, fmt)
     recording = recording_from_frame(frame, source=str(log))
     write_recording(recording, output)

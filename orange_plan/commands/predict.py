@@ -23,6 +23,10 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
     from orange_plan.telemetry.recording import cumulative_J, load_recording
     from orange_plan.telemetry.replay import replay_context
 
+    from orange_plan.paths import check_output
+
+    if png is not None:
+        check_output(png, "--png", [".png"], inputs=[recording, scenario])
     rec = load_recording(recording)
     ctx = load_context(scenario)
     result = replay_context(rec, ctx)

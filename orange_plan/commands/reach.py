@@ -63,8 +63,10 @@ def reach_cmd(
 
     start = parse_xy(from_xy, "--from") if from_xy is not None else None
     goal_set = load_goals(goals) if goals is not None else None
-    if png is not None and png.suffix.lower() != ".png":
-        raise InputError(f"--png {png}: the file name must end in .png")
+    if png is not None:
+        from orange_plan.paths import check_output
+
+        check_output(png, "--png", [".png"], inputs=[scenario, goals])
     with progress(sys.stderr.isatty() and not as_json) as step:
         step("loading scenario")
         ctx = load_context(scenario)

@@ -36,7 +36,10 @@ def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: Tr
     from orange_plan.sim.truth import load_truth
     from orange_plan.telemetry.recording import recording_extension, write_recording
 
-    recording_extension(output)  # refuse a bad extension before the work
+    from orange_plan.paths import check_output
+
+    check_output(output, "-o", inputs=[scenario, plan, truth])  # before the work
+    recording_extension(output)
     ctx = load_context(scenario)
     result = simulate(ctx, load_route(plan), load_truth(truth), seed=seed,
                       sample_rate_Hz=rate_hz, to_depletion=to_depletion,

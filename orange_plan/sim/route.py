@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import InputError
+from orange_plan.paths import csv_delimiter_hint, require_file
 
 
 @dataclass(frozen=True)
@@ -60,8 +61,7 @@ def load_route(path: str | Path) -> Route:
         negative values, speed array of the wrong length.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: route file not found")
+    require_file(path, "route")
     if path.suffix.lower() in (".geojson", ".json"):
         xy, speed = _from_plan(path)
     else:
@@ -113,7 +113,8 @@ def _from_csv(path: Path):
         raise InputError(f"{path}: not a readable CSV ({exc})") from None
     missing = [c for c in ("x_m", "y_m") if c not in frame.columns]
     if missing:
-        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, speed_mps])")
+        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, speed_mps])"
+                         + csv_delimiter_hint(frame.columns))
     try:
         xy = frame[["x_m", "y_m"]].to_numpy(dtype=float)
         speed = (frame["speed_mps"].to_numpy(dtype=float) if "speed_mps" in frame

@@ -11,6 +11,7 @@ from shapely.geometry import MultiPolygon, Point, Polygon, shape
 from shapely.validation import explain_validity
 
 from orange_plan.errors import MapError, close_match_hint
+from orange_plan.paths import require_file
 from orange_plan.world.raster import ElevationRaster, load_elevation
 
 KINDS = {"boundary", "obstacle", "no_go", "surface", "home"}
@@ -75,8 +76,7 @@ def load_map(path: str | Path) -> Map:
         One line naming the file, the feature index and the problem. Nothing is repaired.
     """
     path = Path(path)
-    if not path.is_file():
-        raise MapError(f"{path}: map file not found")
+    require_file(path, "map", MapError)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
