@@ -6,10 +6,12 @@ Bad input: one line on stderr, exit code 2. Internal failure: one line, exit cod
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -84,12 +86,19 @@ def fail(message: str, code: int) -> None:
 
 
 def handles_errors(fn):
-    """Turn InputError into exit 2 and other failures into exit 1, one line each."""
+    """Turn InputError into exit 2 and other failures into exit 1, one line each.
+
+    Library warnings become one ``orange-plan: warning: ...`` line each instead of a raw
+    traceback-style block. With ``--json``, whatever a library prints on stdout goes to
+    stderr, so stdout holds the JSON object alone.
+    """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        json_mode = bool(kwargs.get("as_json"))
         try:
-            return fn(*args, **kwargs)
+            with _one_line_warnings(), _stdout_for_json(json_mode):
+                return fn(*args, **kwargs)
         except InputError as exc:
             fail(str(exc), 2)
         except OrangeError as exc:
@@ -102,9 +111,38 @@ def handles_errors(fn):
     return wrapper
 
 
+_json_stream: list = []
+"""The real stdout while a ``--json`` command runs with library prints sent to stderr."""
+
+
+@contextlib.contextmanager
+def _stdout_for_json(enabled: bool):
+    if not enabled:
+        yield
+        return
+    _json_stream.append(sys.stdout)
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        _json_stream.pop()
+
+
+@contextlib.contextmanager
+def _one_line_warnings():
+    with warnings.catch_warnings(record=True) as caught:
+        try:
+            yield
+        finally:
+            for message in dict.fromkeys(
+                    f"{w.category.__name__}: {w.message}" for w in caught):
+                print(f"orange-plan: warning: {' '.join(message.split())}", file=sys.stderr)
+
+
 def print_json(obj) -> None:
     """Print one JSON object (NaN/inf become null: JSON has no such numbers)."""
-    out.file.write(json.dumps(_finite(obj), indent=2) + "\n")
+    stream = _json_stream[-1] if _json_stream else out.file
+    stream.write(json.dumps(_finite(obj), indent=2) + "\n")
 
 
 def _finite(obj):

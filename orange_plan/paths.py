@@ -88,3 +88,15 @@ def csv_delimiter_hint(columns: Iterable[str]) -> str:
                 return (f" (the header looks separated by {name}: orange-plan reads "
                         "comma-separated CSV with '.' as the decimal point)")
     return ""
+
+
+def read_json(path: Path, what: str, error: type[InputError] = InputError):
+    """Parse a JSON file; bad JSON, bad text or absurd nesting is one ``error`` line."""
+    import json
+
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: not a valid {what} file ({exc})") from None
+    except RecursionError:
+        raise error(f"{path}: not a valid {what} file (nested too deeply)") from None

@@ -21,7 +21,7 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
     """Replay a recording's motion through the scenario's model: energy and power error."""
     from orange_plan.context import load_context
     from orange_plan.telemetry.recording import cumulative_J, load_recording
-    from orange_plan.telemetry.replay import replay_context
+    from orange_plan.telemetry.replay import check_positions_on_map, replay_context
 
     from orange_plan.paths import check_output
 
@@ -29,6 +29,7 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
         check_output(png, "--png", [".png"], inputs=[recording, scenario])
     rec = load_recording(recording)
     ctx = load_context(scenario)
+    check_positions_on_map(rec, ctx.world)
     result = replay_context(rec, ctx)
     report = result.to_dict()
     report["scenario"] = ctx.scenario.name

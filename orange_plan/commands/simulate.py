@@ -52,3 +52,8 @@ def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: Tr
     out.print(f"{output}: {report['samples']} samples, {result.duration_s:,.1f} s, "
               f"{result.distance_m:,.1f} m, {result.energy_J / 3600:,.3f} Wh"
               + (" (battery depleted)" if result.depleted else ""))
+    if result.speeds_clipped:
+        robot = ctx.scenario.robot
+        out.print(f"note: {result.speeds_clipped} route speed(s) outside the robot's "
+                  f"[{robot.v_min_mps:g}, {robot.v_max_mps:g}] m/s were clipped to it",
+                  highlight=False)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import InputError
-from orange_plan.paths import csv_delimiter_hint, require_file
+from orange_plan.paths import csv_delimiter_hint, read_json, require_file
 
 
 @dataclass(frozen=True)
@@ -78,10 +77,7 @@ def load_route(path: str | Path) -> Route:
 
 
 def _from_plan(path: Path):
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json(path, "plan GeoJSON")
     features = data.get("features") if isinstance(data, dict) else None
     tours = [f for f in features or [] if isinstance(f, dict)
              and (f.get("properties") or {}).get("kind") == "tour"]
