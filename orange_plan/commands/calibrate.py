@@ -38,9 +38,8 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
     from orange_plan.context import load_context
     from orange_plan.identify.calibrate import Calibrator
     from orange_plan.identify.scenario_out import physical_values, write_calibrated_scenario
-    from orange_plan.telemetry.recording import load_recording
-
     from orange_plan.paths import check_output
+    from orange_plan.telemetry.recording import load_recording
 
     if output is not None:
         check_output(output, "-o", [".toml"], inputs=[*recordings, scenario])

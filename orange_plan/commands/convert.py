@@ -22,6 +22,8 @@ OutOpt = Annotated[Path, typer.Option("-o", "--output", help="Recording to write
 def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
                 as_json: JsonOpt = False) -> None:
     """Import a robot log into a recording table, checked and completed (SPEC §3)."""
+    from orange_plan.paths import check_output
+    from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.importers import read_log
     from orange_plan.telemetry.recording import (
         recording_extension,
@@ -29,13 +31,15 @@ def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
         write_recording,
     )
 
-    from orange_plan.paths import check_output
-
     check_output(output, "-o", inputs=[log])  # before the (possibly long) import
     recording_extension(output)
-    frame, used = read_log(log, fmt)
-    recording = recording_from_frame(frame, source=str(log))
-    write_recording(recording, output)
+    with stages(wanted(as_json)) as step:
+        step(f"reading {log.name}")
+        frame, used = read_log(log, fmt)
+        step(f"checking {len(frame):,} rows")
+        recording = recording_from_frame(frame, source=str(log))
+        step(f"writing {output.name}")
+        write_recording(recording, output)
     report = {
         "format": used,
         "input": str(log),

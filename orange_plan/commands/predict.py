@@ -20,17 +20,21 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
                 as_json: JsonOpt = False) -> None:
     """Replay a recording's motion through the scenario's model: energy and power error."""
     from orange_plan.context import load_context
+    from orange_plan.paths import check_output
+    from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.recording import cumulative_J, load_recording
     from orange_plan.telemetry.replay import check_positions_on_map, replay_context
 
-    from orange_plan.paths import check_output
-
     if png is not None:
         check_output(png, "--png", [".png"], inputs=[recording, scenario])
-    rec = load_recording(recording)
-    ctx = load_context(scenario)
-    check_positions_on_map(rec, ctx.world)
-    result = replay_context(rec, ctx)
+    with stages(wanted(as_json)) as step:
+        step(f"reading {recording.name}")
+        rec = load_recording(recording)
+        step("loading the scenario")
+        ctx = load_context(scenario)
+        check_positions_on_map(rec, ctx.world)
+        step(f"replaying {len(rec.frame):,} samples")
+        result = replay_context(rec, ctx)
     report = result.to_dict()
     report["scenario"] = ctx.scenario.name
     report["issues"] = [i.to_dict() for i in rec.issues]

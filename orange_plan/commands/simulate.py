@@ -31,12 +31,11 @@ def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: Tr
                  max_duration_s: MaxOpt = 172_800.0, as_json: JsonOpt = False) -> None:
     """Fly/drive a plan in the simulator (scenario model + truth effects); write a recording."""
     from orange_plan.context import load_context
+    from orange_plan.paths import check_output
     from orange_plan.sim.route import load_route
     from orange_plan.sim.simulator import simulate
     from orange_plan.sim.truth import load_truth
     from orange_plan.telemetry.recording import recording_extension, write_recording
-
-    from orange_plan.paths import check_output
 
     check_output(output, "-o", inputs=[scenario, plan, truth])  # before the work
     recording_extension(output)
