@@ -71,7 +71,7 @@ out = Console()
 err = Console(stderr=True)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
-ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (SPEC §2).")]
+ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (robot, losses, battery, ancillary, mission, environment; names its map).")]
 
 
 class CommandFailed(SystemExit):

@@ -1,4 +1,4 @@
-"""``orange-plan convert``: import a robot log into a recording (SPEC §3, §5)."""
+"""``orange-plan convert``: import a robot log into a recording."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ OutOpt = Annotated[Path, typer.Option("-o", "--output", help="Recording to write
 @handles_errors
 def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
                 as_json: JsonOpt = False) -> None:
-    """Import a robot log into a recording table, checked and completed (SPEC §3)."""
+    """Import a robot log into a recording table (t_s, power_W, x_m, y_m, ...), checked and
+    completed."""
     from orange_plan.paths import check_output
     from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.importers import read_log

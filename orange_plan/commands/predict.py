@@ -1,4 +1,4 @@
-"""``orange-plan predict``: replay a recording's motion through the model (SPEC §5)."""
+"""``orange-plan predict``: replay a recording's motion through the model."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import typer
 
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
 
-RecordingArg = Annotated[Path, typer.Argument(help="Recording (.csv or .parquet, SPEC §3).")]
-ScenarioOpt = Annotated[Path, typer.Option("--scenario", help="Scenario TOML file (SPEC §2).")]
+RecordingArg = Annotated[Path, typer.Argument(
+    help="Recording (.csv or .parquet): t_s, power_W (or voltage_V and current_A), x_m and y_m (or v_mps).")]
+ScenarioOpt = Annotated[Path, typer.Option(
+    "--scenario", help="Scenario TOML file (robot, losses, battery, ancillary, mission, environment; names its map).")]
 PngOpt = Annotated[Path | None, typer.Option("--png", help="Write recorded vs predicted power here.")]
 
 

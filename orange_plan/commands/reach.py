@@ -41,7 +41,7 @@ def reach_cmd(
     seed: Annotated[int, typer.Option(help="Roadmap random seed.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:
-    """Which goals can be visited and the robot still get home with its reserve (SPEC §5)."""
+    """Which goals can be visited and the robot still get home with its reserve."""
     from orange_plan.context import load_context
     from orange_plan.planning.goals import load_goals
     from orange_plan.planning.reach import home_status, prepare_reach, query_goals, query_points

@@ -10,8 +10,8 @@ import typer
 from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
 
 PlanArg = Annotated[Path, typer.Argument(
-    help="Plan GeoJSON (SPEC §4: the 'tour' LineString, its speed_mps) or route CSV "
-         "(x_m, y_m[, speed_mps]).")]
+    help="Plan GeoJSON (its LineString feature of kind 'tour', with per-vertex speed_mps) or "
+         "route CSV (x_m, y_m[, speed_mps]).")]
 OutOpt = Annotated[Path, typer.Option("-o", "--output", help="Recording to write (.csv or .parquet).")]
 TruthOpt = Annotated[Path | None, typer.Option(
     "--truth", help="TRUTH.toml: truth-only effects (wind gusts, payload, roughness, ageing, "

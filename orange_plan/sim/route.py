@@ -82,7 +82,7 @@ def _from_plan(path: Path):
     tours = [f for f in features or [] if isinstance(f, dict)
              and (f.get("properties") or {}).get("kind") == "tour"]
     if not tours:
-        raise InputError(f"{path}: no feature with kind = 'tour' (SPEC §4 plan)")
+        raise InputError(f"{path}: no feature with kind = 'tour' (a plan's tour LineString)")
     geom = tours[0].get("geometry") or {}
     if geom.get("type") != "LineString":
         raise InputError(f"{path}: the tour must be a LineString, got {geom.get('type')!r}")
