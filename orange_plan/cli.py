@@ -27,7 +27,6 @@ except ImportError:  # pragma: no cover - older typer runs on click itself
 from orange_plan.errors import InputError, OrangeError
 
 
-
 class OneLineErrors(TyperGroup):
     """The root command group: the CLI's own argument errors (unknown option, missing
     argument, bad value) get the same one line and exit code 2 as every other bad input,
@@ -71,7 +70,11 @@ out = Console()
 err = Console(stderr=True)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
-ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (robot, losses, battery, ancillary, mission, environment; names its map).")]
+SCENARIO_HELP = ("Scenario TOML file (robot, losses, battery, ancillary, mission, environment; "
+                 "names its map).")
+RECORDING_HELP = ("Recording file(s), .csv or .parquet: t_s, power_W (or voltage_V and "
+                  "current_A), x_m and y_m (or v_mps).")
+ScenarioArg = Annotated[Path, typer.Argument(help=SCENARIO_HELP)]
 
 
 class CommandFailed(SystemExit):

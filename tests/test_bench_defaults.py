@@ -32,7 +32,7 @@ def test_installed_examples_are_found_under_the_prefix(tmp_path, monkeypatch):
     monkeypatch.setattr(examples, "candidate_dirs",
                         lambda kind: [tmp_path / "site-packages" / kind, share / kind])
     assert examples.examples_dir("scenarios", "--scenarios") == share / "scenarios"
-    code, stdout, err = run_cli("bench", "online", "--only", "rusti_v1_box", "--seeds", "0")
+    code, _, err = run_cli("bench", "online", "--only", "rusti_v1_box", "--seeds", "0")
     assert code == 2 and "--seeds = 0" in err  # got past the folder look-up
 
 
@@ -57,10 +57,10 @@ def test_convert_shows_progress_on_a_terminal_only(tmp_path, monkeypatch):
     screen = io.StringIO()
     monkeypatch.setattr(cli, "err", Console(file=screen, force_terminal=True, width=100))
     monkeypatch.setattr("orange_plan.progress.wanted", lambda as_json: not as_json)
-    code, stdout, _ = run_cli("convert", log, "-o", tmp_path / "a.csv")
+    code, _, _ = run_cli("convert", log, "-o", tmp_path / "a.csv")
     assert code == 0 and "writing a.csv" in screen.getvalue()
     screen.truncate(0)
-    code, stdout, _ = run_cli("convert", log, "-o", tmp_path / "b.csv", "--json")
+    code, _, _ = run_cli("convert", log, "-o", tmp_path / "b.csv", "--json")
     assert code == 0 and screen.getvalue().strip("\x00") == ""
 
 

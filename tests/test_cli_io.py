@@ -81,9 +81,9 @@ def test_atomic_writer_names_the_users_path_not_the_temporary_file(tmp_path):
 
     blocker = tmp_path / "f"
     blocker.write_text("x", encoding="utf-8")
-    with pytest.raises(InputError, match=r"f/out\.csv: cannot write") as info:
-        with atomic_path(blocker / "out.csv"):
-            pass
+    with pytest.raises(InputError, match=r"f/out\.csv: cannot write") as info, \
+            atomic_path(blocker / "out.csv"):
+        pass
     assert ".out.csv." not in str(info.value)
 
 

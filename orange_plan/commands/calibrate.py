@@ -8,18 +8,24 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import (
+    RECORDING_HELP,
+    SCENARIO_HELP,
+    JsonOpt,
+    app,
+    handles_errors,
+    out,
+    print_json,
+)
 
-RecordingsArg = Annotated[list[Path], typer.Argument(
-    help="Recordings (.csv or .parquet): t_s, power_W (or voltage_V and current_A), x_m and y_m "
-         "(or v_mps).")]
-ScenarioOpt = Annotated[Path, typer.Option(
-    "--scenario", help="Scenario TOML file (robot, losses, battery, ancillary, mission, environment; names its map).")]
+RecordingsArg = Annotated[list[Path], typer.Argument(help=RECORDING_HELP)]
+ScenarioOpt = Annotated[Path, typer.Option("--scenario", help=SCENARIO_HELP)]
 OutOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", help="Write the scenario with the fitted values here (TOML).")]
 TermsOpt = Annotated[str | None, typer.Option(
-    "--terms", help="Comma-separated physics term ids to fit (see the README's term table), e.g. "
-                    "ancillary,sensor_rate,rolling,surface_rolling; default: the scenario's model.")]
+    "--terms", help="Comma-separated physics term ids to fit (see the README's term table), "
+                    "e.g. ancillary,sensor_rate,rolling,surface_rolling; default: the "
+                    "scenario's model.")]
 FixedOpt = Annotated[str | None, typer.Option(
     "--fixed", help="Comma-separated coefficient names to hold at the scenario's values.")]
 NoPriorOpt = Annotated[bool, typer.Option(

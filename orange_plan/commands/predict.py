@@ -7,12 +7,18 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import (
+    RECORDING_HELP,
+    SCENARIO_HELP,
+    JsonOpt,
+    app,
+    handles_errors,
+    out,
+    print_json,
+)
 
-RecordingArg = Annotated[Path, typer.Argument(
-    help="Recording (.csv or .parquet): t_s, power_W (or voltage_V and current_A), x_m and y_m (or v_mps).")]
-ScenarioOpt = Annotated[Path, typer.Option(
-    "--scenario", help="Scenario TOML file (robot, losses, battery, ancillary, mission, environment; names its map).")]
+RecordingArg = Annotated[Path, typer.Argument(help=RECORDING_HELP)]
+ScenarioOpt = Annotated[Path, typer.Option("--scenario", help=SCENARIO_HELP)]
 PngOpt = Annotated[Path | None, typer.Option("--png", help="Write recorded vs predicted power here.")]
 
 

@@ -221,10 +221,11 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     """
     truth = truth or Truth()
     if not (0 < sample_rate_Hz <= MAX_RATE_HZ):
-        raise InputError(f"sample_rate_Hz (--rate-hz) = {sample_rate_Hz!r} must be in (0, {MAX_RATE_HZ:g}] Hz")
+        raise InputError(f"sample_rate_Hz (--rate-hz) = {sample_rate_Hz!r} must be in "
+                         f"(0, {MAX_RATE_HZ:g}] Hz")
     if not (0 < max_duration_s < math.inf):
-        raise InputError(f"max_duration_s (--max-duration-s) = {max_duration_s!r} must be a positive number of "
-                         "seconds")
+        raise InputError(f"max_duration_s (--max-duration-s) = {max_duration_s!r} must be a "
+                         "positive number of seconds")
     scenario, world = ctx.scenario, ctx.world
     world.check_points(route.xy_m, "route vertex")
     free = world.segments_free(route.xy_m[:-1], route.xy_m[1:])
