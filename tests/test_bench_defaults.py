@@ -73,3 +73,15 @@ def test_progress_bar_counts_items(monkeypatch):
         tick()
         tick()
     assert "simulating" in screen.getvalue() and "2/2" in screen.getvalue()
+
+
+def test_calibration_progress_counts_every_held_out_run(tmp_path):
+    from orange_plan.identify.bench import count_runs
+
+    for name in ("ASPHALT/pro_01.csv", "ASPHALT/pro_02.csv", "SNOW/pro_03.csv", "SNOW/imu_03.csv"):
+        (tmp_path / "borealtc" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "borealtc" / name).write_text("", encoding="utf-8")
+    (tmp_path / "tum_bmw_i3").mkdir()
+    (tmp_path / "tum_bmw_i3" / "TripA01.csv.gz").write_bytes(b"")
+    assert count_runs(tmp_path, ["husky_borealtc"]) == 3
+    assert count_runs(tmp_path, ["husky_borealtc", "bmw_i3_tum"]) == 4

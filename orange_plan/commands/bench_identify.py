@@ -63,6 +63,7 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
     from orange_plan.identify.bench import (
         CALIBRATION_CASES,
         calibration_benchmark,
+        count_runs,
         summarise_calibration,
     )
 
@@ -74,7 +75,7 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
     if not data.is_dir():
         raise InputError(f"{data}: data folder not found (give --data)")
     scenarios = _scenarios(scenarios)
-    with bar(2 * len(names), "calibrating (folds)", wanted(as_json)) as tick:
+    with bar(count_runs(data, names), "held-out runs", wanted(as_json)) as tick:
         rows = calibration_benchmark(data, scenarios, names, progress=tick)
     summary = summarise_calibration(rows)
     if as_json:

@@ -257,6 +257,11 @@ class CalibrationRow:
         return asdict(self)
 
 
+def count_runs(data_dir: str | Path, datasets) -> int:
+    """Runs ``calibration_benchmark`` will hold out (each once): its progress total."""
+    return sum(len(list(Path(data_dir).glob(CALIBRATION_CASES[name][2]))) for name in datasets)
+
+
 def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
     """Import and check every run matching ``pattern`` under ``data_dir`` (sorted by path)."""
     from orange_plan.telemetry.importers import FORMATS
@@ -332,8 +337,8 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
                                            100 * (pred - recorded) / recorded,
                                            100 * (pred0 - recorded) / recorded, online[0],
                                            float(np.mean(np.abs(online))), online0[0]))
-            if progress:
-                progress()
+                if progress:
+                    progress()
     return rows
 
 
