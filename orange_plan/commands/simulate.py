@@ -29,7 +29,11 @@ MaxOpt = Annotated[float, typer.Option("--max-duration-s", help="Stop after this
 def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: TruthOpt = None,
                  seed: SeedOpt = 0, rate_hz: RateOpt = 10.0, to_depletion: DepleteOpt = False,
                  max_duration_s: MaxOpt = 172_800.0, as_json: JsonOpt = False) -> None:
-    """Fly/drive a plan in the simulator (scenario model + truth effects); write a recording."""
+    """Fly/drive a plan in the simulator (scenario model + truth effects); write a recording.
+
+    Commanded speeds are clipped to the robot's range v_min_mps..v_max_mps; the count of clipped
+    route vertices is reported.
+    """
     from orange_plan.context import load_context
     from orange_plan.paths import check_output
     from orange_plan.sim.route import load_route
