@@ -31,8 +31,7 @@ def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: Tr
                  max_duration_s: MaxOpt = 172_800.0, as_json: JsonOpt = False) -> None:
     """Fly/drive a plan in the simulator (scenario model + truth effects); write a recording.
 
-    Commanded speeds are clipped to the robot's range v_min_mps..v_max_mps; the count of clipped
-    route vertices is reported.
+    Speeds are clipped to the robot's v_min_mps..v_max_mps; clipped vertices are counted.
     """
     from orange_plan.context import load_context
     from orange_plan.paths import check_output
