@@ -139,3 +139,18 @@ def test_a_folder_given_as_a_file_says_so(tmp_path, which):
     assert code == 2 and "is a folder" in one_line(err)
     with pytest.raises(InputError, match="is a folder"):
         require_file(folder, which)
+
+
+def test_calibrate_writes_into_a_new_folder_like_every_other_writer(tmp_path):
+    from orange_plan.paths import check_output  # the up-front check allows a new folder
+
+    scenario = write_scenario(tmp_path)
+    rec = tmp_path / "rec.csv"
+    rows = "\n".join(f"{t},{10 + 0.1 * (t % 7)},{0.5 + 0.01 * (t % 5)}" for t in range(200))
+    rec.write_text("t_s,power_W,v_mps\n" + rows + "\n", encoding="utf-8")
+    target = tmp_path / "new" / "fitted.toml"
+    check_output(target, "-o", [".toml"])
+    code, _, err = run_cli("calibrate", rec, "--scenario", scenario, "-o", target,
+                           "--terms", "ancillary")
+    assert code == 0, err
+    assert target.is_file()
