@@ -239,6 +239,8 @@ def read_toml(path: Path, kind: str, error: type[InputError] = ScenarioError) ->
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise error(f"{path}: not a valid TOML file ({exc})") from None
+    except RecursionError:
+        raise error(f"{path}: not a valid TOML file (nested too deeply)") from None
 
 
 def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:

@@ -43,6 +43,13 @@ def test_deeply_nested_json_is_one_line(tmp_path):
     assert code == 2 and "nested too deeply" in one_line(err)
 
 
+def test_deeply_nested_toml_is_one_line(tmp_path):
+    path = tmp_path / "deep.toml"
+    path.write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n", encoding="utf-8")
+    code, _, err = run_cli("range", path)
+    assert code == 2 and "nested too deeply" in one_line(err)
+
+
 def test_unclosed_ring_is_refused_not_repaired(tmp_path):
     features = copy.deepcopy(base_features())
     features[2]["geometry"]["coordinates"][0].pop()  # the obstacle's closing position
