@@ -6,19 +6,61 @@ Bad input: one line on stderr, exit code 2. Internal failure: one line, exit cod
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
+from typer.core import TyperGroup
+
+try:  # typer >= 0.20 carries its own copy of click
+    from typer._click import exceptions as click_exc
+except ImportError:  # pragma: no cover - older typer runs on click itself
+    from click import exceptions as click_exc
 
 from orange_plan.errors import InputError, OrangeError
 
+
+class OneLineErrors(TyperGroup):
+    """The root command group: the CLI's own argument errors (unknown option, missing
+    argument, bad value) get the same one line and exit code 2 as every other bad input,
+    instead of click/typer's multi-line box."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, False, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, False, **extra)
+        except click_exc.NoArgsIsHelpError as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click_exc.UsageError as exc:
+            fail(f"{_subcommand(exc.ctx)}{exc.format_message()} (see --help)", 2)
+        except click_exc.ClickException as exc:
+            fail(exc.format_message(), exc.exit_code)
+        except typer.Abort:
+            fail("aborted", 1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+def _subcommand(ctx) -> str:
+    """``"bench reach: "`` for an error inside a subcommand, ``""`` at the root."""
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name)
+        ctx = ctx.parent
+    return " ".join(reversed(names)) + ": " if names else ""
+
+
 app = typer.Typer(
+    cls=OneLineErrors,
     add_completion=False,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
@@ -28,7 +70,11 @@ out = Console()
 err = Console(stderr=True)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
-ScenarioArg = Annotated[Path, typer.Argument(help="Scenario TOML file (SPEC §2).")]
+SCENARIO_HELP = ("Scenario TOML file (robot, losses, battery, ancillary, mission, environment; "
+                 "names its map).")
+RECORDING_HELP = ("Recording file(s), .csv or .parquet: t_s, power_W (or voltage_V and "
+                  "current_A), x_m and y_m (or v_mps).")
+ScenarioArg = Annotated[Path, typer.Argument(help=SCENARIO_HELP)]
 
 
 class CommandFailed(SystemExit):
@@ -43,12 +89,19 @@ def fail(message: str, code: int) -> None:
 
 
 def handles_errors(fn):
-    """Turn InputError into exit 2 and other failures into exit 1, one line each."""
+    """Turn InputError into exit 2 and other failures into exit 1, one line each.
+
+    Library warnings become one ``orange-plan: warning: ...`` line each instead of a raw
+    traceback-style block. With ``--json``, whatever a library prints on stdout goes to
+    stderr, so stdout holds the JSON object alone.
+    """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        json_mode = bool(kwargs.get("as_json"))
         try:
-            return fn(*args, **kwargs)
+            with _one_line_warnings(), _stdout_for_json(json_mode):
+                return fn(*args, **kwargs)
         except InputError as exc:
             fail(str(exc), 2)
         except OrangeError as exc:
@@ -61,9 +114,38 @@ def handles_errors(fn):
     return wrapper
 
 
+_json_stream: list = []
+"""The real stdout while a ``--json`` command runs with library prints sent to stderr."""
+
+
+@contextlib.contextmanager
+def _stdout_for_json(enabled: bool):
+    if not enabled:
+        yield
+        return
+    _json_stream.append(sys.stdout)
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        _json_stream.pop()
+
+
+@contextlib.contextmanager
+def _one_line_warnings():
+    with warnings.catch_warnings(record=True) as caught:
+        try:
+            yield
+        finally:
+            for message in dict.fromkeys(
+                    f"{w.category.__name__}: {w.message}" for w in caught):
+                print(f"orange-plan: warning: {' '.join(message.split())}", file=sys.stderr)
+
+
 def print_json(obj) -> None:
     """Print one JSON object (NaN/inf become null: JSON has no such numbers)."""
-    out.file.write(json.dumps(_finite(obj), indent=2) + "\n")
+    stream = _json_stream[-1] if _json_stream else out.file
+    stream.write(json.dumps(_finite(obj), indent=2) + "\n")
 
 
 def _finite(obj):
@@ -76,16 +158,21 @@ def _finite(obj):
     return obj
 
 
-@app.callback()
-def _root(
-    version: Annotated[bool, typer.Option("--version", help="Print the version and exit.")] = False,
-) -> None:
-    """ORangE mission planner for battery-powered robots (ground, aerial, marine)."""
-    if version:
+def _print_version(value: bool) -> None:
+    if value:
         from orange_plan import __version__
 
         out.print(__version__)
         raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option(
+        "--version", help="Print the version and exit.", callback=_print_version,
+        is_eager=True)] = False,
+) -> None:
+    """ORangE mission planner for battery-powered robots (ground, aerial, marine)."""
 
 
 def main() -> None:

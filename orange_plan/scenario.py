@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
+from orange_plan.paths import require_file
 from orange_plan.physics.battery import Battery, Losses
 from orange_plan.physics.terms import EXTRA_TERM_IDS
 from orange_plan.physics.wind import wind_vector_mps
@@ -223,14 +224,30 @@ def load_scenario(path: str | Path) -> Scenario:
     return scenario_from_dict(read_toml(path, "scenario"), path)
 
 
+MIN_CAPACITY_FRACTION = 1e-3
+"""Capacity left after decay, exp(-(k1 C + k2 t)), below which the battery is exhausted."""
+
+
+def _check_not_exhausted(battery: Battery, where: str) -> None:
+    """Refuse a battery that capacity decay has emptied: every range and plan would be 0 m."""
+    fraction = battery.capacity_J / battery.rated_energy_J if battery.rated_energy_J else 0.0
+    if fraction < MIN_CAPACITY_FRACTION:
+        raise ScenarioError(
+            f"{where}: the battery is exhausted: capacity decay exp(-(k1_per_cycle*cycles + "
+            f"k2_per_day*age_days)) leaves {fraction:.3g} of the rated energy (below "
+            f"{MIN_CAPACITY_FRACTION:g}); check battery.cycles, age_days, k1_per_cycle, k2_per_day"
+        )
+
+
 def read_toml(path: Path, kind: str, error: type[InputError] = ScenarioError) -> dict:
     """Parse a TOML file; a missing file or bad TOML is one ``error`` line naming the file."""
-    if not path.is_file():
-        raise error(f"{path}: {kind} file not found")
+    require_file(path, kind, error)
     try:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise error(f"{path}: not a valid TOML file ({exc})") from None
+    except RecursionError:
+        raise error(f"{path}: not a valid TOML file (nested too deeply)") from None
 
 
 def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:
@@ -265,6 +282,7 @@ def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:
         )
     losses = Losses(**values["losses"])
     battery = Battery(storage_loss=losses.battery, **values["battery"])
+    _check_not_exhausted(battery, where)
     mission_tbl = data.get("mission", {})
     mission = Mission(
         home_xy_m=_home(mission_tbl.get("home_xy_m"), where),

@@ -342,12 +342,12 @@ def test_bad_arguments_are_refused(tmp_path):
 
 
 def test_no_room_for_a_lane_is_refused(tmp_path):
-    world = rect_world(tmp_path, 0.4, 0.4)
-    grid = coverage_grid(world, 1.0)
-    # One mid-line, 0.4 - 2 * 0.02 = 0.36 m < 0.5 r: no lane; a viewpoint still fits.
+    world = rect_world(tmp_path, 1.2, 0.4)  # maps under 1 m both ways are refused as lon/lat
+    grid = coverage_grid(world, 3.0)
+    # One mid-line, at best 1.2 - 2 * 0.06 = 1.08 m < 0.5 r: no lane; a viewpoint still fits.
     with pytest.raises(InputError, match="no room for a coverage candidate"):
-        coverage_candidates(world, grid, 1.0, kinds=("lane",))
-    assert coverage_candidates(world, grid, 1.0).n >= 1
+        coverage_candidates(world, grid, 3.0, kinds=("lane",))
+    assert coverage_candidates(world, grid, 3.0).n >= 1
 
 
 # --- real maps and speed ----------------------------------------------------------------------

@@ -127,7 +127,7 @@ def test_epoch_seconds_are_rebased_and_reported():
 def test_unknown_extension_and_missing_file(tmp_path):
     with pytest.raises(RecordingError, match="unknown recording extension"):
         write_recording(straight(), tmp_path / "r.txt")
-    with pytest.raises(RecordingError, match="no such recording"):
+    with pytest.raises(RecordingError, match="recording file not found"):
         load_recording(tmp_path / "nope.csv")
 
 

@@ -93,7 +93,7 @@ def test_route_from_plan_and_csv(tmp_path):
     ("r.csv", "x_m,y_m\n0,0\n1,abc\n", "must hold numbers"),
     ("r.csv", "x_m,y_m,speed_mps\n0,0,1\n1,1,-1\n", "speed_mps must be >= 0"),
     ("p.geojson", '{"type": "FeatureCollection", "features": []}', "no feature with kind = 'tour'"),
-    ("p.geojson", "{not json", "not valid JSON"),
+    ("p.geojson", "{not json", "not a valid plan GeoJSON file"),
 ])
 def test_bad_route_is_refused(tmp_path, name, text, match):
     (tmp_path / name).write_text(text, encoding="utf-8")
@@ -191,5 +191,5 @@ def test_energy_never_negative_without_regen(ctx, rolling, wind, gust, payload, 
 
 
 def test_bad_sample_rate(ctx):
-    with pytest.raises(InputError, match="sample_rate_Hz = 0 must be > 0"):
+    with pytest.raises(InputError, match=r"sample_rate_Hz \(--rate-hz\) = 0 must be in \(0, 1000\]"):
         simulate(ctx, route(), sample_rate_Hz=0)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import statistics
-import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -11,8 +10,8 @@ import typer
 from rich.table import Table
 
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
-from orange_plan.commands.reach import progress
 from orange_plan.errors import InputError
+from orange_plan.progress import stages, wanted
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks (timings are medians).")
 app.add_typer(bench_app, name="bench")
@@ -22,10 +21,10 @@ TARGETS = {"roadmap_s": 2.5, "queries_s": 1.0, "roadmap_vs_grid": 1.03, "speed_1
 
 
 def default_scenario() -> Path:
-    """The hilly example shipped with the repository (scenarios/kiwibot_campus.toml)."""
-    import orange_plan
+    """The hilly example shipped with the package (scenarios/kiwibot_campus.toml)."""
+    from orange_plan.examples import examples_dir
 
-    return Path(orange_plan.__file__).resolve().parents[1] / "scenarios" / "kiwibot_campus.toml"
+    return examples_dir("scenarios", "a SCENARIO argument") / "kiwibot_campus.toml"
 
 
 @bench_app.command("reach")
@@ -47,7 +46,7 @@ def bench_reach_cmd(
     scenario = scenario or default_scenario()
     if repeats < 1:
         raise InputError(f"--repeats = {repeats} must be >= 1")
-    with progress(sys.stderr.isatty() and not as_json) as step:
+    with stages(wanted(as_json)) as step:
         ctx = load_context(scenario)
         result = run_reach_bench(ctx, repeats=repeats, n_vertices=vertices,
                                  bitstar_seconds=bitstar_s, step=step)
@@ -146,7 +145,7 @@ def bench_plan_cmd(
                 tmp.write_text(json.dumps(result.to_dict(), indent=1), encoding="utf-8")
 
     with tempfile.TemporaryDirectory(prefix="orange-bench-plan-") as folder, \
-            progress(sys.stderr.isatty() and not as_json) as step:
+            stages(wanted(as_json)) as step:
         specs = scenario_specs(names, Path(folder), 1 if quick else family_size,
                                {"width_m": 80.0, "height_m": 60.0} if quick else None)
         result = run_plan_bench(specs, plan_fn, seeds, n_vertices=800 if quick else 3000,

@@ -6,20 +6,21 @@ so that file needs no edit).
 
 from __future__ import annotations
 
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, err, handles_errors, out, print_json
+from orange_plan.cli import JsonOpt, handles_errors, out, print_json
 from orange_plan.commands.bench import bench_app
+from orange_plan.progress import bar, wanted
 
-REPO = Path(__file__).resolve().parents[2]
-DataOpt = Annotated[Path, typer.Option("--data", help="Folder with borealtc/ and tum_bmw_i3/.")]
-ScenariosOpt = Annotated[Path, typer.Option("--scenarios", help="Folder of scenario TOML files.")]
+DataOpt = Annotated[Path | None, typer.Option(
+    "--data", help="Folder with the real data sets' borealtc/ and tum_bmw_i3/ folders (not "
+                   "shipped with the package; default: ../shared/data beside a source checkout).")]
+ScenariosOpt = Annotated[Path | None, typer.Option(
+    "--scenarios", help="Folder of scenario TOML files (default: the shipped examples).")]
 SeedsOpt = Annotated[int, typer.Option("--seeds", help="Simulated runs per scenario.")]
 PngOpt = Annotated[Path | None, typer.Option(
     "--png", help="Figure of the range estimates over the first run of each scenario.")]
@@ -27,17 +28,26 @@ OnlyOpt = Annotated[str | None, typer.Option(
     "--only", help="Comma-separated subset (datasets or scenario names).")]
 
 
-@contextmanager
-def _progress(total: int, label: str, quiet: bool):
-    """A rich progress bar on stderr, only on a terminal and never with --json."""
-    if quiet or not sys.stderr.isatty():
-        yield None
-        return
-    from rich.progress import Progress
+def _scenarios(folder: Path | None) -> Path:
+    from orange_plan.examples import examples_dir
 
-    with Progress(console=err, transient=True) as bar:
-        task = bar.add_task(label, total=total)
-        yield lambda: bar.advance(task)
+    return folder if folder is not None else examples_dir("scenarios", "--scenarios")
+
+
+DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+"""Where a source checkout of this workplace keeps the real data sets."""
+
+
+def _default_data() -> Path:
+    """``DEFAULT_DATA`` when it exists; otherwise --data is required."""
+    from orange_plan.errors import InputError
+
+    data = DEFAULT_DATA
+    if not data.is_dir():
+        raise InputError("bench calibration needs the real data sets (BorealTC, TUM BMW i3), "
+                         "which are not shipped with the package: give --data DIR, the folder "
+                         "holding borealtc/ and tum_bmw_i3/")
+    return data
 
 
 def _split(text):
@@ -46,14 +56,14 @@ def _split(text):
 
 @bench_app.command("calibration")
 @handles_errors
-def calibration_cmd(data: DataOpt = REPO.parent / "shared" / "data",
-                    scenarios: ScenariosOpt = REPO / "scenarios", only: OnlyOpt = None,
+def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: OnlyOpt = None,
                     as_json: JsonOpt = False) -> None:
     """Fit on every other real run, predict the others' whole-run energy (two folds)."""
     from orange_plan.errors import InputError
     from orange_plan.identify.bench import (
         CALIBRATION_CASES,
         calibration_benchmark,
+        count_runs,
         summarise_calibration,
     )
 
@@ -61,9 +71,11 @@ def calibration_cmd(data: DataOpt = REPO.parent / "shared" / "data",
     unknown = [n for n in names if n not in CALIBRATION_CASES]
     if unknown:
         raise InputError(f"unknown dataset '{unknown[0]}'; known: {', '.join(CALIBRATION_CASES)}")
+    data = data if data is not None else _default_data()
     if not data.is_dir():
         raise InputError(f"{data}: data folder not found (give --data)")
-    with _progress(2 * len(names), "calibrating", as_json) as tick:
+    scenarios = _scenarios(scenarios)
+    with bar(count_runs(data, names), "held-out runs", wanted(as_json)) as tick:
         rows = calibration_benchmark(data, scenarios, names, progress=tick)
     summary = summarise_calibration(rows)
     if as_json:
@@ -120,16 +132,21 @@ def _share(summary: dict, tag: str) -> str:
 
 @bench_app.command("online")
 @handles_errors
-def online_cmd(scenarios: ScenariosOpt = REPO / "scenarios", seeds: SeedsOpt = 3,
+def online_cmd(scenarios: ScenariosOpt = None, seeds: SeedsOpt = 3,
                only: OnlyOpt = None, png: PngOpt = None, as_json: JsonOpt = False) -> None:
     """Offline vs online range accuracy on simulated runs to depletion."""
     from orange_plan.errors import InputError
     from orange_plan.identify.bench import BENCH_TRUTHS, online_benchmark, summarise
 
     names = _split(only) or list(BENCH_TRUTHS)
+    if png is not None:
+        from orange_plan.paths import check_output
+
+        check_output(png, "--png", [".png"])
     if seeds < 1:
         raise InputError(f"--seeds = {seeds} must be >= 1")
-    with _progress(len(names) * seeds, "simulating", as_json) as tick:
+    scenarios = _scenarios(scenarios)
+    with bar(len(names) * seeds, "simulating runs to depletion", wanted(as_json)) as tick:
         rows = online_benchmark(scenarios, names, tuple(range(seeds)), progress=tick)
     summary = summarise(rows)
     report = {"summary": summary, "runs": [r.to_dict() for r in rows]}

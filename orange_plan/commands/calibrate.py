@@ -1,4 +1,4 @@
-"""``orange-plan calibrate``: fit the model's coefficients to recordings (SPEC §5)."""
+"""``orange-plan calibrate``: fit the model's coefficients to recordings."""
 
 from __future__ import annotations
 
@@ -8,15 +8,24 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import (
+    RECORDING_HELP,
+    SCENARIO_HELP,
+    JsonOpt,
+    app,
+    handles_errors,
+    out,
+    print_json,
+)
 
-RecordingsArg = Annotated[list[Path], typer.Argument(help="Recordings (.csv or .parquet, SPEC §3).")]
-ScenarioOpt = Annotated[Path, typer.Option("--scenario", help="Scenario TOML file (SPEC §2).")]
+RecordingsArg = Annotated[list[Path], typer.Argument(help=RECORDING_HELP)]
+ScenarioOpt = Annotated[Path, typer.Option("--scenario", help=SCENARIO_HELP)]
 OutOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", help="Write the scenario with the fitted values here (TOML).")]
 TermsOpt = Annotated[str | None, typer.Option(
-    "--terms", help="Comma-separated term ids to fit (SPEC §6), e.g. "
-                    "ancillary,sensor_rate,rolling,surface_rolling; default: the scenario's model.")]
+    "--terms", help="Comma-separated physics term ids to fit (see the README's term table), "
+                    "e.g. ancillary,sensor_rate,rolling,surface_rolling; default: the "
+                    "scenario's model.")]
 FixedOpt = Annotated[str | None, typer.Option(
     "--fixed", help="Comma-separated coefficient names to hold at the scenario's values.")]
 NoPriorOpt = Annotated[bool, typer.Option(
@@ -38,8 +47,11 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
     from orange_plan.context import load_context
     from orange_plan.identify.calibrate import Calibrator
     from orange_plan.identify.scenario_out import physical_values, write_calibrated_scenario
+    from orange_plan.paths import check_output
     from orange_plan.telemetry.recording import load_recording
 
+    if output is not None:
+        check_output(output, "-o", [".toml"], inputs=[*recordings, scenario])
     ctx = load_context(scenario)
     recs = [load_recording(p) for p in recordings]
     cal = Calibrator(terms=_split(terms), fixed=_split(fixed) or (), use_prior=not no_prior,

@@ -1,4 +1,4 @@
-"""``orange-plan convert``: import a robot log into a recording (SPEC §3, §5)."""
+"""``orange-plan convert``: import a robot log into a recording."""
 
 from __future__ import annotations
 
@@ -21,7 +21,10 @@ OutOpt = Annotated[Path, typer.Option("-o", "--output", help="Recording to write
 @handles_errors
 def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
                 as_json: JsonOpt = False) -> None:
-    """Import a robot log into a recording table, checked and completed (SPEC §3)."""
+    """Import a robot log into a recording table (t_s, power_W, x_m, y_m, ...), checked and
+    completed."""
+    from orange_plan.paths import check_output
+    from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.importers import read_log
     from orange_plan.telemetry.recording import (
         recording_extension,
@@ -29,10 +32,15 @@ def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
         write_recording,
     )
 
-    recording_extension(output)  # refuse a bad output name before the (possibly long) import
-    frame, used = read_log(log, fmt)
-    recording = recording_from_frame(frame, source=str(log))
-    write_recording(recording, output)
+    check_output(output, "-o", inputs=[log])  # before the (possibly long) import
+    recording_extension(output)
+    with stages(wanted(as_json)) as step:
+        step(f"reading {log.name}")
+        frame, used = read_log(log, fmt)
+        step(f"checking {len(frame):,} rows")
+        recording = recording_from_frame(frame, source=str(log))
+        step(f"writing {output.name}")
+        write_recording(recording, output)
     report = {
         "format": used,
         "input": str(log),

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
-from orange_plan.commands.reach import parse_xy, progress
+from orange_plan.commands.reach import parse_xy
 from orange_plan.errors import InputError
+from orange_plan.paths import check_output
+from orange_plan.progress import stages, wanted
 
 
 @app.command("plan")
@@ -41,11 +42,13 @@ def plan_cmd(
     from orange_plan.planning.plan import StartState
     from orange_plan.planning.tour import plan_tour
 
-    _check_outputs(output, png)
+    check_output(output, "-o", [".geojson", ".json"], inputs=[scenario])
+    if png is not None:
+        check_output(png, "--png", [".png"], inputs=[scenario, output])
     start_xy = parse_xy(from_xy, "--from") if from_xy is not None else None
     if not (energy_used_J >= 0 and time_s >= 0):
         raise InputError("--energy-used-J and --time-s must be >= 0")
-    with progress(sys.stderr.isatty() and not as_json) as step:
+    with stages(wanted(as_json)) as step:
         step("loading scenario")
         ctx = load_context(scenario)
         start = StartState(start_xy, float(energy_used_J), float(time_s))
@@ -61,22 +64,6 @@ def plan_cmd(
         print_json(report)
         return
     _print_summary(report, png)
-
-
-def _check_outputs(output: Path, png: Path | None) -> None:
-    """Refuse output names that cannot be written before any work is done."""
-    if output.suffix.lower() not in (".geojson", ".json"):
-        raise InputError(f"-o {output}: the plan file name must end in .geojson or .json")
-    if png is not None and png.suffix.lower() != ".png":
-        raise InputError(f"--png {png}: the file name must end in .png")
-    for path in (output, png):
-        if path is None:
-            continue
-        if path.is_dir():
-            raise InputError(f"{path}: is a directory, not a file name")
-        folder = path.parent if str(path.parent) else Path(".")
-        if folder.exists() and not folder.is_dir():
-            raise InputError(f"{path}: {folder} is not a folder")
 
 
 def _print_summary(s: dict, png) -> None:

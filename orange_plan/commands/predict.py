@@ -1,4 +1,4 @@
-"""``orange-plan predict``: replay a recording's motion through the model (SPEC §5)."""
+"""``orange-plan predict``: replay a recording's motion through the model."""
 
 from __future__ import annotations
 
@@ -7,10 +7,18 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import (
+    RECORDING_HELP,
+    SCENARIO_HELP,
+    JsonOpt,
+    app,
+    handles_errors,
+    out,
+    print_json,
+)
 
-RecordingArg = Annotated[Path, typer.Argument(help="Recording (.csv or .parquet, SPEC §3).")]
-ScenarioOpt = Annotated[Path, typer.Option("--scenario", help="Scenario TOML file (SPEC §2).")]
+RecordingArg = Annotated[Path, typer.Argument(help=RECORDING_HELP)]
+ScenarioOpt = Annotated[Path, typer.Option("--scenario", help=SCENARIO_HELP)]
 PngOpt = Annotated[Path | None, typer.Option("--png", help="Write recorded vs predicted power here.")]
 
 
@@ -20,12 +28,21 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
                 as_json: JsonOpt = False) -> None:
     """Replay a recording's motion through the scenario's model: energy and power error."""
     from orange_plan.context import load_context
+    from orange_plan.paths import check_output
+    from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.recording import cumulative_J, load_recording
-    from orange_plan.telemetry.replay import replay_context
+    from orange_plan.telemetry.replay import check_positions_on_map, replay_context
 
-    rec = load_recording(recording)
-    ctx = load_context(scenario)
-    result = replay_context(rec, ctx)
+    if png is not None:
+        check_output(png, "--png", [".png"], inputs=[recording, scenario])
+    with stages(wanted(as_json)) as step:
+        step(f"reading {recording.name}")
+        rec = load_recording(recording)
+        step("loading the scenario")
+        ctx = load_context(scenario)
+        check_positions_on_map(rec, ctx.world)
+        step(f"replaying {len(rec.frame):,} samples")
+        result = replay_context(rec, ctx)
     report = result.to_dict()
     report["scenario"] = ctx.scenario.name
     report["issues"] = [i.to_dict() for i in rec.issues]

@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, ScenarioArg, app, err, handles_errors, out, print_json
+from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
 from orange_plan.errors import InputError
+from orange_plan.progress import stages, wanted
 
 
 def parse_xy(text: str, option: str) -> tuple[float, float]:
@@ -24,20 +23,6 @@ def parse_xy(text: str, option: str) -> tuple[float, float]:
     if not all(map(lambda v: v == v and abs(v) != float("inf"), (x, y))):
         raise InputError(f"{option} must be finite, got {text!r}")
     return x, y
-
-
-@contextmanager
-def progress(enabled: bool):
-    """A transient rich progress display on stderr (only on a terminal, never with --json)."""
-    if not enabled:
-        yield lambda description: None
-        return
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
-                  console=err, transient=True) as bar:
-        task = bar.add_task("starting", total=None)
-        yield lambda description: bar.update(task, description=description)
 
 
 @app.command("reach")
@@ -59,16 +44,18 @@ def reach_cmd(
     seed: Annotated[int, typer.Option(help="Roadmap random seed.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:
-    """Which goals can be visited and the robot still get home with its reserve (SPEC §5)."""
+    """Which goals can be visited and the robot still get home with its reserve."""
     from orange_plan.context import load_context
     from orange_plan.planning.goals import load_goals
     from orange_plan.planning.reach import home_status, prepare_reach, query_goals, query_points
 
     start = parse_xy(from_xy, "--from") if from_xy is not None else None
     goal_set = load_goals(goals) if goals is not None else None
-    if png is not None and png.suffix.lower() != ".png":
-        raise InputError(f"--png {png}: the file name must end in .png")
-    with progress(sys.stderr.isatty() and not as_json) as step:
+    if png is not None:
+        from orange_plan.paths import check_output
+
+        check_output(png, "--png", [".png"], inputs=[scenario, goals])
+    with stages(wanted(as_json)) as step:
         step("loading scenario")
         ctx = load_context(scenario)
         step(f"building the energy roadmap ({vertices} vertices)")

@@ -300,6 +300,11 @@ class CalibrationRow:
         return asdict(self)
 
 
+def count_runs(data_dir: str | Path, datasets) -> int:
+    """Runs ``calibration_benchmark`` will hold out (each once): its progress total."""
+    return sum(len(list(Path(data_dir).glob(CALIBRATION_CASES[name][2]))) for name in datasets)
+
+
 def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
     """Import and check every run matching ``pattern`` under ``data_dir`` (sorted by path)."""
     from orange_plan.telemetry.importers import FORMATS
@@ -409,8 +414,8 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
                                            fitted.sd_J, pred0, before.sd_J,
                                            cal.discrepancy_rel_sd_, fitted.param_sd_J,
                                            before.param_sd_J))
-            if progress:
-                progress()
+                if progress:
+                    progress()
     return rows
 
 

@@ -121,16 +121,16 @@ def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) ->
     """Write the calibrated scenario atomically; it is loaded back and must rebuild ``model``'s
     coefficients and discrepancy (correlations are not stored) before it replaces ``path``.
 
+    A missing output folder is created, as by every other writer (``atomic_path``).
+
     Raises
     ------
     InputError
-        The output folder does not exist.
+        The file cannot be written there.
     OrangeError
         The written file would not load or not rebuild the model (an internal failure).
     """
     path = Path(path)
-    if not path.parent.exists():
-        raise InputError(f"{path}: folder {path.parent} does not exist")
     text = tomli_w.dumps(calibrated_scenario_dict(scenario, model, path.parent))
     with atomic_path(path, suffix=".toml") as tmp:
         tmp.write_text(text, encoding="utf-8")

@@ -126,6 +126,14 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
             f"{scenario.path}: model.stderr names unknown coefficient '{unknown[0]}'"
             + close_match_hint(unknown[0], theta)
         )
-    sd = [spec.stderr.get(n, spec.prior_relative_stderr * abs(v)) for n, v in theta.items()]
-    return EnergyModel(terms, theta, np.diag(np.square(sd)), omega=scenario.omega,
+    sd = np.array([spec.stderr.get(n, spec.prior_relative_stderr * abs(v))
+                   for n, v in theta.items()], float)
+    with np.errstate(over="ignore"):
+        variance = np.square(sd)
+    for (name, value), var in zip(theta.items(), variance):
+        if not (np.isfinite(value) and np.isfinite(var)):
+            raise ScenarioError(
+                f"{scenario.path}: model coefficient {name} = {value:g} (from the robot, losses "
+                "and ancillary values) is too large to compute with; check e.g. robot.mass_kg")
+    return EnergyModel(terms, theta, np.diag(variance), omega=scenario.omega,
                        discrepancy_rel_sd=spec.discrepancy_rel_sd)

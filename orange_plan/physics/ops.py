@@ -8,40 +8,42 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # CasADi is a hard dependency, but keep the import local to this module.
-    import casadi as ca
-
-    _CASADI_TYPES: tuple[type, ...] = (ca.SX, ca.MX, ca.DM)
-except ImportError:  # pragma: no cover - casadi is in the dependencies
-    ca = None
-    _CASADI_TYPES = ()
-
 
 def is_symbolic(*values) -> bool:
-    """True if any value is a CasADi SX/MX/DM object."""
-    return any(isinstance(v, _CASADI_TYPES) for v in values)
+    """True if any value is a CasADi SX/MX/DM object.
+
+    Tested by the type's module, so that numpy-only work (range, reach, predict) never pays
+    for importing CasADi; a CasADi object can only exist once CasADi has been imported.
+    """
+    return any(type(v).__module__.startswith("casadi") for v in values)
+
+
+def _ca():
+    import casadi
+
+    return casadi
 
 
 def sqrt(x):
     """Square root for numpy or CasADi."""
-    return ca.sqrt(x) if is_symbolic(x) else np.sqrt(x)
+    return _ca().sqrt(x) if is_symbolic(x) else np.sqrt(x)
 
 
 def fabs(x):
     """Absolute value for numpy or CasADi."""
-    return ca.fabs(x) if is_symbolic(x) else np.abs(x)
+    return _ca().fabs(x) if is_symbolic(x) else np.abs(x)
 
 
 def fmax(x, y):
     """Element-wise maximum for numpy or CasADi (``max(0, F)``: no energy recovery)."""
-    return ca.fmax(x, y) if is_symbolic(x, y) else np.maximum(x, y)
+    return _ca().fmax(x, y) if is_symbolic(x, y) else np.maximum(x, y)
 
 
 def fmin(x, y):
     """Element-wise minimum for numpy or CasADi."""
-    return ca.fmin(x, y) if is_symbolic(x, y) else np.minimum(x, y)
+    return _ca().fmin(x, y) if is_symbolic(x, y) else np.minimum(x, y)
 
 
 def exp(x):
     """Exponential for numpy or CasADi."""
-    return ca.exp(x) if is_symbolic(x) else np.exp(x)
+    return _ca().exp(x) if is_symbolic(x) else np.exp(x)

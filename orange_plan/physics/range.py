@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from orange_plan.errors import InputError
 from orange_plan.mission import check_time_limit
@@ -65,17 +65,31 @@ class RangeResult:
         return asdict(self)
 
 
-def best_speed(cost_per_m, v_min_mps: float, v_max_mps: float) -> float:
-    """Speed in [v_min, v_max] minimising ``cost_per_m`` (a per-metre energy cost, or any
-    unimodal function of speed) by bounded Brent, the two ends also tried [m/s]."""
+def best_speed(cost_per_m, v_min_mps: float, v_max_mps: float, xatol: float = 1e-6) -> float:
+    """Speed in [v_min, v_max] minimising a per-metre energy cost (or any unimodal function
+    of speed) [m/s].
+
+    Golden-section search down to ``xatol``, then the better of its result and the two ends
+    (the cost is unimodal in v for the reference model; the ends catch a monotone cost).
+    Pure Python on purpose: importing scipy.optimize for this costs half a second of start-up.
+    """
     if v_min_mps == v_max_mps:
         return float(v_min_mps)
-    candidates = [v_min_mps, v_max_mps]
-    res = minimize_scalar(cost_per_m, bounds=(v_min_mps, v_max_mps), method="bounded",
-                          options={"xatol": 1e-6})
-    if res.success:
-        candidates.append(float(res.x))
-    return float(min(candidates, key=cost_per_m))
+    inv_phi = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = float(v_min_mps), float(v_max_mps)
+    c, d = b - inv_phi * (b - a), a + inv_phi * (b - a)
+    fc, fd = cost_per_m(c), cost_per_m(d)
+    while b - a > xatol:
+        if fc <= fd:
+            b, d, fd = d, c, fc
+            c = b - inv_phi * (b - a)
+            fc = cost_per_m(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + inv_phi * (b - a)
+            fd = cost_per_m(d)
+    middle = c if fc <= fd else d
+    return float(min([v_min_mps, v_max_mps, middle], key=cost_per_m))
 
 
 def flat_state(speed_mps, crr: float, sensor_rate_Hz: float) -> MotionState:

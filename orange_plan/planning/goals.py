@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError
+from orange_plan.paths import csv_delimiter_hint, require_file
 
 
 @dataclass(frozen=True)
@@ -40,8 +41,7 @@ def load_goals(path: str | Path) -> Goals:
         coordinate (naming the row, counting the header as row 1).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: goals file not found")
+    require_file(path, "goals")
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.DictReader(fh))
@@ -53,7 +53,8 @@ def load_goals(path: str | Path) -> Goals:
         raise InputError(f"{path}: no goals (need a header with x_m, y_m and at least one row)")
     if missing:
         raise InputError(f"{path}: missing column(s) {', '.join(missing)} "
-                         f"(have: {', '.join(h for h in header if h)})")
+                         f"(have: {', '.join(h for h in header if h)})"
+                         + csv_delimiter_hint(header))
     xy = np.empty((len(rows), 2))
     for i, row in enumerate(rows):
         for j, col in enumerate(("x_m", "y_m")):

@@ -20,11 +20,11 @@ answers are conservative).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from statistics import NormalDist
 
 import numpy as np
 import shapely
 from scipy.spatial import cKDTree
-from scipy.stats import norm
 
 from orange_plan.errors import InputError
 from orange_plan.mission import TimeLimitCheck, check_time_limit
@@ -70,7 +70,8 @@ def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
         return np.full(var.shape, reserve.value * energy_available_J)
     if reserve.kind == "energy_J":
         return np.full(var.shape, float(reserve.value))
-    return norm.ppf(reserve.value) * np.sqrt(np.clip(var, 0.0, None))
+    # the standard library's quantile: scipy.stats alone took seconds to import
+    return NormalDist().inv_cdf(reserve.value) * np.sqrt(np.clip(var, 0.0, None))
 
 
 # --- set-up -------------------------------------------------------------------------------
@@ -400,8 +401,21 @@ def query_points(reach: Reachability, points_xy, k: int = 8) -> PointsReach:
 
     Approximate where the exact answer differs: occupancy, crr and collision tests come from
     the rasters and turning at the goal is not charged. ``query_goals`` gives exact answers.
+    Points are taken in chunks of ``QUERY_CHUNK`` so memory stays flat for any count.
     """
     pts = np.atleast_2d(np.asarray(points_xy, float))
+    parts = [_query_chunk(reach, chunk, k)
+             for chunk in np.array_split(pts, max(1, -(-len(pts) // QUERY_CHUNK)))]
+    return PointsReach(*(np.concatenate(arrays) for arrays in zip(*(
+        (p.energy_to_goal_J, p.energy_goal_to_home_J, p.reserve_J, p.margin_J, p.valid)
+        for p in parts))))
+
+
+QUERY_CHUNK = 4096
+"""Points per vectorised batch in ``query_points`` (k segments each, sub-stepped)."""
+
+
+def _query_chunk(reach: Reachability, pts: np.ndarray, k: int) -> PointsReach:
     rm, fast = reach.roadmap, reach.fast
     n = len(pts)
     k = min(k, rm.n_vertices)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import InputError
+from orange_plan.paths import csv_delimiter_hint, read_json, require_file
 
 
 @dataclass(frozen=True)
@@ -60,8 +60,7 @@ def load_route(path: str | Path) -> Route:
         negative values, speed array of the wrong length.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: route file not found")
+    require_file(path, "route")
     if path.suffix.lower() in (".geojson", ".json"):
         xy, speed = _from_plan(path)
     else:
@@ -78,15 +77,12 @@ def load_route(path: str | Path) -> Route:
 
 
 def _from_plan(path: Path):
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json(path, "plan GeoJSON")
     features = data.get("features") if isinstance(data, dict) else None
     tours = [f for f in features or [] if isinstance(f, dict)
              and (f.get("properties") or {}).get("kind") == "tour"]
     if not tours:
-        raise InputError(f"{path}: no feature with kind = 'tour' (SPEC §4 plan)")
+        raise InputError(f"{path}: no feature with kind = 'tour' (a plan's tour LineString)")
     geom = tours[0].get("geometry") or {}
     if geom.get("type") != "LineString":
         raise InputError(f"{path}: the tour must be a LineString, got {geom.get('type')!r}")
@@ -113,7 +109,8 @@ def _from_csv(path: Path):
         raise InputError(f"{path}: not a readable CSV ({exc})") from None
     missing = [c for c in ("x_m", "y_m") if c not in frame.columns]
     if missing:
-        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, speed_mps])")
+        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, speed_mps])"
+                         + csv_delimiter_hint(frame.columns))
     try:
         xy = frame[["x_m", "y_m"]].to_numpy(dtype=float)
         speed = (frame["speed_mps"].to_numpy(dtype=float) if "speed_mps" in frame

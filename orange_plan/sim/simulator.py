@@ -34,6 +34,10 @@ from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
 
+MAX_RATE_HZ = 1000.0
+"""Highest recording rate: beyond it a long run's table no longer fits in memory (1e5 Hz
+took minutes and 1.4 GB for a short route) and no battery logger samples faster."""
+
 CHUNK_S = 600.0
 """Simulated time per vectorised power evaluation (depletion is checked per chunk) [s]."""
 
@@ -52,6 +56,8 @@ class SimResult:
     moving_time_s : time with non-zero speed [s]
     depleted : the run stopped because the usable energy was spent
     laps : number of route laps driven (fractional) [-]
+    speeds_clipped : route vertices whose commanded speed lay outside [v_min_mps, v_max_mps]
+        and was clipped to that interval
     """
 
     frame: pd.DataFrame
@@ -62,12 +68,13 @@ class SimResult:
     moving_time_s: float
     depleted: bool
     laps: float
+    speeds_clipped: int = 0
 
     def summary(self) -> dict:
         """The scalar results (for ``--json``)."""
         return {k: getattr(self, k) for k in (
             "energy_J", "energy_available_J", "distance_m", "duration_s", "moving_time_s",
-            "depleted", "laps")} | {"samples": len(self.frame)}
+            "depleted", "laps", "speeds_clipped")} | {"samples": len(self.frame)}
 
 
 def truth_model(model: EnergyModel, truth: Truth) -> EnergyModel:
@@ -130,7 +137,8 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     Parameters
     ----------
     ctx : Context (scenario, world, model)
-    route : the route; vertices without a speed get the scenario's simplified-range v_opt
+    route : the route; vertices without a speed get the scenario's simplified-range v_opt;
+        commanded speeds are clipped to [v_min_mps, v_max_mps] (counted in ``speeds_clipped``)
     truth : truth-only effects (default none: the truth is the planning model)
     seed : random seed (gusts, roughness, noise)
     sample_rate_Hz : recording rate [Hz]
@@ -149,8 +157,12 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     noise. Energy drawn is ``sum P dt`` (rectangle rule over the samples).
     """
     truth = truth or Truth()
-    if not (sample_rate_Hz > 0 and math.isfinite(sample_rate_Hz)):
-        raise InputError(f"sample_rate_Hz = {sample_rate_Hz!r} must be > 0")
+    if not (0 < sample_rate_Hz <= MAX_RATE_HZ):
+        raise InputError(f"sample_rate_Hz (--rate-hz) = {sample_rate_Hz!r} must be in "
+                         f"(0, {MAX_RATE_HZ:g}] Hz")
+    if not (0 < max_duration_s < math.inf):
+        raise InputError(f"max_duration_s (--max-duration-s) = {max_duration_s!r} must be a "
+                         "positive number of seconds")
     scenario, world = ctx.scenario, ctx.world
     world.check_points(route.xy_m, "route vertex")
     free = world.segments_free(route.xy_m[:-1], route.xy_m[1:])
@@ -165,7 +177,10 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     steps = subdivide(world, lap.xy_m[:-1], lap.xy_m[1:])
     edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
     step_heading = step_headings_rad(steps)
-    speed = np.clip(lap.speed_mps[steps.segment], scenario.robot.v_min_mps, None)
+    # One rule for commanded speeds: clip to the robot's [v_min, v_max], and count it.
+    v_lo, v_hi = scenario.robot.v_min_mps, scenario.robot.v_max_mps
+    clipped = int(np.count_nonzero((route.speed_mps < v_lo) | (route.speed_mps > v_hi)))
+    speed = np.clip(lap.speed_mps[steps.segment], v_lo, v_hi)
     driver = Driver(edges, speed, steps.cos_t, scenario.robot.accel_max_mps2, dt,
                     ctx.duty_cycle, truth.stop_every_s, to_depletion)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lap.xy_m, axis=0).T))]
@@ -214,7 +229,7 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     _add_noise(frame, rng, truth)
     distance = float(np.sum(frame["v_mps"]) * dt)
     return SimResult(frame, used, e_avail, distance, float(len(frame) * dt),
-                     float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps)
+                     float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps, clipped)
 
 
 def _columns(kin, s_lap, vertex_s, lap, world, state, power, carrying, truth, wind, cum,

@@ -57,6 +57,7 @@ import pandas as pd
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import RecordingError
+from orange_plan.paths import csv_delimiter_hint, require_file
 from orange_plan.physics.state import MotionState
 from orange_plan.physics.wind import wind_vector_mps
 
@@ -200,8 +201,7 @@ def load_recording(path: str | Path) -> Recording:
         Unknown extension, unreadable or empty file, or a rule that refuses the data.
     """
     path = Path(path)
-    if not path.exists():
-        raise RecordingError(f"{path}: no such recording file")
+    require_file(path, "recording", RecordingError)
     frame = _read_table(path)
     return recording_from_frame(frame, source=str(path))
 
@@ -316,7 +316,8 @@ def _check_required(frame: pd.DataFrame, source: str) -> None:
 
 def _have(cols) -> str:
     shown = sorted(cols)[:12]
-    return f"; columns present: {', '.join(shown)}" + (" ..." if len(cols) > 12 else "")
+    return (f"; columns present: {', '.join(shown)}" + (" ..." if len(cols) > 12 else "")
+            + csv_delimiter_hint(cols))
 
 
 def _to_numbers(frame: pd.DataFrame, source: str) -> pd.DataFrame:

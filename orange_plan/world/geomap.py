@@ -6,15 +6,47 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon, Point, Polygon, shape
 from shapely.validation import explain_validity
 
 from orange_plan.errors import MapError, close_match_hint
+from orange_plan.paths import read_json, require_file
 from orange_plan.world.raster import ElevationRaster, load_elevation
 
 KINDS = {"boundary", "obstacle", "no_go", "surface", "home"}
-TOP_LEVEL_KEYS = {"type", "features", "default_surface", "elevation", "name", "crs", "bbox"}
+TOP_LEVEL_KEYS = {"type", "features", "default_surface", "elevation", "origin", "name", "crs",
+                  "bbox"}
+ORIGIN_RANGES = {"lat_deg": (-90.0, 90.0), "lon_deg": (-180.0, 180.0), "alt_m": (-1e5, 1e5)}
+"""The members of ``origin`` and their allowed ranges (alt_m: metres above the WGS84
+ellipsoid, from the Dead Sea shore to well above any flight)."""
+
+MAX_COORD_M = 1e7
+"""Largest |x| or |y| [m]: a local tangent plane is meaningless 10,000 km from its origin,
+and larger numbers (1e300) made the planner's sub-steps run for minutes."""
+
+MIN_EXTENT_M = 1.0
+"""A workspace smaller than this in both directions is refused: it is almost certainly
+longitude/latitude in degrees, not metres."""
+
+GEOGRAPHIC_CRS = ("4326", "crs84", "4269", "4258", "wgs 84", "wgs84")
+"""Markers of a longitude/latitude ``crs`` member (EPSG:4326, OGC CRS84, NAD83, ETRS89)."""
+
+
+@dataclass(frozen=True)
+class Origin:
+    """The WGS84 point at x = y = 0 of the map's local east-north-up frame.
+
+    Attributes
+    ----------
+    lat_deg, lon_deg : latitude and longitude [deg]
+    alt_m : altitude [m]
+    """
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
 
 
 @dataclass(frozen=True)
@@ -40,6 +72,7 @@ class Map:
     default_surface : (name, crr) or None
     elevation : raster, or None for flat ground at z = 0
     path : the file it came from
+    origin : the WGS84 point at x = y = 0, or None (exports/imports in lat/lon are refused)
     """
 
     boundary: Polygon
@@ -50,6 +83,7 @@ class Map:
     default_surface: tuple[str, float] | None
     elevation: ElevationRaster | None
     path: Path
+    origin: Origin | None = None
 
     @property
     def keep_out(self):
@@ -75,12 +109,8 @@ def load_map(path: str | Path) -> Map:
         One line naming the file, the feature index and the problem. Nothing is repaired.
     """
     path = Path(path)
-    if not path.is_file():
-        raise MapError(f"{path}: map file not found")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise MapError(f"{path}: not a valid GeoJSON/JSON file ({exc})") from None
+    require_file(path, "map", MapError)
+    data = read_json(path, "GeoJSON/JSON", MapError)
     if not isinstance(data, dict) or data.get("type") != "FeatureCollection":
         raise MapError(f"{path}: must be a GeoJSON FeatureCollection")
     for key in data:
@@ -88,6 +118,8 @@ def load_map(path: str | Path) -> Map:
             raise MapError(
                 f"{path}: unknown top-level member '{key}'" + close_match_hint(key, TOP_LEVEL_KEYS)
             )
+    _check_crs(data.get("crs"), path)
+    origin = _origin(data.get("origin"), path)
     features = data.get("features")
     if not isinstance(features, list) or not features:
         raise MapError(f"{path}: empty map (no features; need at least a boundary)")
@@ -97,6 +129,7 @@ def load_map(path: str | Path) -> Map:
         parts[kind].append((i, geom, props))
 
     boundary = _boundary(parts["boundary"], path)
+    _check_extent(boundary, parts["boundary"][0][0], path)
     obstacles = tuple(_polygonal(i, g, "obstacle", path) for i, g, _ in parts["obstacle"])
     no_go = tuple(_polygonal(i, g, "no_go", path) for i, g, _ in parts["no_go"])
     surfaces = tuple(_surface(i, g, p, path) for i, g, p in parts["surface"])
@@ -104,11 +137,65 @@ def load_map(path: str | Path) -> Map:
     default_surface = _default_surface(data.get("default_surface"), path)
     elevation = None
     if "elevation" in data:
-        if not isinstance(data["elevation"], str):
-            raise MapError(f"{path}: 'elevation' must be a raster file name")
-        elevation = load_elevation(path.parent / data["elevation"])
+        elevation = load_elevation(_raster_path(data["elevation"], path))
         _check_covers(elevation, boundary, data["elevation"], path)
-    return Map(boundary, obstacles, no_go, surfaces, home, default_surface, elevation, path)
+    return Map(boundary, obstacles, no_go, surfaces, home, default_surface, elevation, path,
+               origin)
+
+
+def _raster_path(name, path: Path) -> Path:
+    """The elevation raster's path, confined to the map's folder (and its subfolders)."""
+    if not isinstance(name, str) or not name:
+        raise MapError(f"{path}: 'elevation' must be a raster file name")
+    folder = path.parent.resolve()
+    target = (folder / name).resolve()
+    if Path(name).is_absolute() or not target.is_relative_to(folder):
+        raise MapError(f"{path}: 'elevation' = {name!r} must be a file in the map's folder "
+                       f"({folder}) or below it, given relative to the map")
+    return target
+
+
+def _check_crs(crs, path: Path) -> None:
+    """Refuse a longitude/latitude ``crs``: the map must be in a local metric frame."""
+    if crs is None:
+        return
+    text = json.dumps(crs).lower().replace("_", " ")
+    if any(marker in text for marker in GEOGRAPHIC_CRS):
+        raise MapError(f"{path}: 'crs' {json.dumps(crs)} is longitude/latitude; orange-plan "
+                       "needs a local metric frame (x east, y north, metres): project the map "
+                       "and give its WGS84 anchor as 'origin'")
+
+
+def _origin(value, path: Path) -> Origin | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise MapError(f"{path}: 'origin' must be {{\"lat_deg\": ..., \"lon_deg\": ..., "
+                       f"\"alt_m\": ...}}, got {value!r}")
+    for key in value:
+        if key not in ORIGIN_RANGES:
+            raise MapError(f"{path}: origin has unknown member '{key}'"
+                           + close_match_hint(key, ORIGIN_RANGES))
+    numbers = {}
+    for key, (lo, hi) in ORIGIN_RANGES.items():
+        v = value.get(key)
+        if v is None:
+            raise MapError(f"{path}: origin needs '{key}'")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+            raise MapError(f"{path}: origin {key} = {v!r} must be a number in [{lo:g}, {hi:g}]")
+        numbers[key] = float(v)
+    return Origin(**numbers)
+
+
+def _check_extent(boundary: Polygon, i: int, path: Path) -> None:
+    x0, y0, x1, y1 = boundary.bounds
+    if max(abs(x0), abs(y0), abs(x1), abs(y1)) > MAX_COORD_M:
+        raise MapError(f"{path}: feature {i} (boundary) has coordinates beyond {MAX_COORD_M:g} m "
+                       "from the origin; the map must be in a local metric frame")
+    if max(x1 - x0, y1 - y0) < MIN_EXTENT_M:
+        raise MapError(f"{path}: feature {i} (boundary) spans only {x1 - x0:g} x {y1 - y0:g} m; "
+                       "are these longitude/latitude degrees? orange-plan needs metres "
+                       "(x east, y north)")
 
 
 def _feature(feature, i: int, path: Path):
@@ -121,11 +208,33 @@ def _feature(feature, i: int, path: Path):
             f"{path}: feature {i} has unknown kind {kind!r} (allowed: {', '.join(sorted(KINDS))})"
             + close_match_hint(str(kind), KINDS)
         )
+    _check_rings_closed(feature.get("geometry"), f"feature {i} ({kind})", path)
     try:
         geom = shape(feature.get("geometry"))
     except Exception as exc:  # noqa: BLE001 - shapely raises several types here
         raise MapError(f"{path}: feature {i} ({kind}) has malformed geometry ({exc})") from None
+    if not geom.is_empty and not _finite_and_bounded(geom):
+        raise MapError(f"{path}: feature {i} ({kind}) has a coordinate that is not finite or "
+                       f"lies beyond {MAX_COORD_M:g} m from the origin")
     return kind, geom, props
+
+
+def _finite_and_bounded(geom) -> bool:
+    xy = shapely.get_coordinates(geom)
+    return bool(np.all(np.isfinite(xy)) and np.all(np.abs(xy) <= MAX_COORD_M))
+
+
+def _check_rings_closed(geometry, what: str, path: Path) -> None:
+    """GeoJSON rings must end where they start; shapely would close them silently."""
+    if not isinstance(geometry, dict):
+        return
+    kind, coords = geometry.get("type"), geometry.get("coordinates")
+    polygons = [coords] if kind == "Polygon" else coords if kind == "MultiPolygon" else []
+    for polygon in polygons or []:
+        for j, ring in enumerate(polygon if isinstance(polygon, list) else []):
+            if isinstance(ring, list) and len(ring) >= 2 and ring[0] != ring[-1]:
+                raise MapError(f"{path}: {what}: ring {j} is not closed (its first position "
+                               f"{ring[0]} differs from its last {ring[-1]}); nothing is repaired")
 
 
 def _polygonal(i: int, geom, kind: str, path: Path):

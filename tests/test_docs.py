@@ -1,0 +1,52 @@
+"""Issue #13 item 9: what a user of the package reads (README, docs/, --help) is
+self-contained: no citation of SPEC sections or DESIGN.md, which users never have."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from conftest import REPO, run_cli
+
+CITATION = re.compile(r"SPEC|DESIGN\.md|§")
+QUICK_START = '''```bash
+python -m pip install . && orange-plan range scenarios/rusti_v2_grass_2200mAh_v0952.toml
+python -m pip install ".[test]" && python -m pytest -q
+```'''
+
+
+@pytest.mark.parametrize("command", [[], ["range"], ["reach"], ["simulate"], ["convert"],
+                                     ["predict"], ["calibrate"], ["bench"], ["bench", "reach"],
+                                     ["bench", "online"], ["bench", "calibration"]])
+def test_help_cites_no_spec_section(command):
+    code, stdout, _ = run_cli(*command, "--help")
+    assert code == 0
+    assert not CITATION.search(stdout), CITATION.search(stdout)
+
+
+@pytest.mark.parametrize("name", ["README.md", "docs/formats.md", "docs/json.md"])
+def test_user_documents_cite_no_spec_section(name):
+    text = (REPO / name).read_text(encoding="utf-8")
+    assert not CITATION.search(text)
+
+
+def test_readme_opens_with_the_quick_start_and_links_the_docs():
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert QUICK_START in readme.split("## Commands")[0]
+    assert "docs/formats.md" in readme and "docs/json.md" in readme
+
+
+def test_formats_document_every_user_file_and_the_map_origin():
+    formats = (REPO / "docs" / "formats.md").read_text(encoding="utf-8")
+    for needle in ("## Map", "## Scenario", "## Recording", "## Plan", "## Route CSV",
+                   "## Goals CSV", '"origin"', "lat_deg", "mission.reserve", "sensor_rate_Hz",
+                   "energy_to_home_J", "coverage_fraction"):
+        assert needle in formats, needle
+
+
+def test_json_document_names_every_range_and_reach_key():
+    doc = (REPO / "docs" / "json.md").read_text(encoding="utf-8")
+    for key in ("d_max_m", "v_opt_mps", "energy_per_m_J", "ancillary_loss_eta4_J", "generalised",
+                "home_reachable", "energy_goal_to_home_J", "margin_J", "speeds_clipped",
+                "energy_predicted_J", "holdout_rmse_W", "first_row"):
+        assert f"`{key}`" in doc, key
