@@ -10,7 +10,7 @@ from conftest import REPO, run_cli
 
 CITATION = re.compile(r"SPEC|DESIGN\.md|§")
 QUICK_START = '''```bash
-python -m pip install . && orange-plan range scenarios/rusti_v2_grass_2200mAh_v0952.toml
+python -m pip install . && orange-plan plan scenarios/kiwibot_campus.toml -o plan.geojson --png plan.png
 python -m pip install ".[test]" && python -m pytest -q
 ```'''
 
