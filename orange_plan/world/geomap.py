@@ -14,7 +14,26 @@ from orange_plan.errors import MapError, close_match_hint
 from orange_plan.world.raster import ElevationRaster, load_elevation
 
 KINDS = {"boundary", "obstacle", "no_go", "surface", "home"}
-TOP_LEVEL_KEYS = {"type", "features", "default_surface", "elevation", "name", "crs", "bbox"}
+TOP_LEVEL_KEYS = {"type", "features", "default_surface", "elevation", "origin", "name", "crs",
+                  "bbox"}
+ORIGIN_RANGES = {"lat_deg": (-90.0, 90.0), "lon_deg": (-180.0, 180.0), "alt_m": (-1e5, 1e5)}
+"""The members of ``origin`` and their allowed ranges (alt_m: metres above the WGS84
+ellipsoid, from the Dead Sea shore to well above any flight)."""
+
+
+@dataclass(frozen=True)
+class Origin:
+    """The WGS84 point at x = y = 0 of the map's local east-north-up frame.
+
+    Attributes
+    ----------
+    lat_deg, lon_deg : latitude and longitude [deg]
+    alt_m : altitude [m]
+    """
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
 
 
 @dataclass(frozen=True)
@@ -40,6 +59,7 @@ class Map:
     default_surface : (name, crr) or None
     elevation : raster, or None for flat ground at z = 0
     path : the file it came from
+    origin : the WGS84 point at x = y = 0, or None (exports/imports in lat/lon are refused)
     """
 
     boundary: Polygon
@@ -50,6 +70,7 @@ class Map:
     default_surface: tuple[str, float] | None
     elevation: ElevationRaster | None
     path: Path
+    origin: Origin | None = None
 
     @property
     def keep_out(self):
@@ -88,6 +109,7 @@ def load_map(path: str | Path) -> Map:
             raise MapError(
                 f"{path}: unknown top-level member '{key}'" + close_match_hint(key, TOP_LEVEL_KEYS)
             )
+    origin = _origin(data.get("origin"), path)
     features = data.get("features")
     if not isinstance(features, list) or not features:
         raise MapError(f"{path}: empty map (no features; need at least a boundary)")
@@ -108,7 +130,29 @@ def load_map(path: str | Path) -> Map:
             raise MapError(f"{path}: 'elevation' must be a raster file name")
         elevation = load_elevation(path.parent / data["elevation"])
         _check_covers(elevation, boundary, data["elevation"], path)
-    return Map(boundary, obstacles, no_go, surfaces, home, default_surface, elevation, path)
+    return Map(boundary, obstacles, no_go, surfaces, home, default_surface, elevation, path,
+               origin)
+
+
+def _origin(value, path: Path) -> Origin | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise MapError(f"{path}: 'origin' must be {{\"lat_deg\": ..., \"lon_deg\": ..., "
+                       f"\"alt_m\": ...}}, got {value!r}")
+    for key in value:
+        if key not in ORIGIN_RANGES:
+            raise MapError(f"{path}: origin has unknown member '{key}'"
+                           + close_match_hint(key, ORIGIN_RANGES))
+    numbers = {}
+    for key, (lo, hi) in ORIGIN_RANGES.items():
+        v = value.get(key)
+        if v is None:
+            raise MapError(f"{path}: origin needs '{key}'")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+            raise MapError(f"{path}: origin {key} = {v!r} must be a number in [{lo:g}, {hi:g}]")
+        numbers[key] = float(v)
+    return Origin(**numbers)
 
 
 def _feature(feature, i: int, path: Path):
