@@ -138,7 +138,7 @@ def planned(tmp_path_factory):
 
 @pytest.mark.parametrize("fmt, name", [("qgc", "mission.plan"), ("mavlink", "mission.waypoints")])
 def test_export_files_read_back_within_0p1m(planned, tmp_path, fmt, name):
-    scenario, plan_path, ctx, plan = planned
+    scenario, plan_path, ctx, _ = planned
     out = tmp_path / name
     code, stdout, stderr = run_cli("export", plan_path, "--scenario", scenario, "--format", fmt,
                                    "-o", out, "--json")

@@ -45,6 +45,7 @@ metres cannot be placed on the Earth without it.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass
@@ -188,7 +189,7 @@ def waypoint_indices(xy_m, speed_mps, tolerance_m: float = TOLERANCE_M,
     turn = np.abs(np.angle(np.exp(1j * (heading[1:] - heading[:-1]))))
     keep[1:-1] |= (turn > math.radians(turn_deg)) & moving[1:] & moving[:-1]
     kept = np.flatnonzero(keep)
-    for a, b in zip(kept[:-1], kept[1:]):
+    for a, b in itertools.pairwise(kept):
         _douglas_peucker(xy, int(a), int(b), 0.5 * tolerance_m, keep)
     return np.flatnonzero(keep)
 
