@@ -24,7 +24,7 @@ def export_cmd(
         "--format", help="'qgc' (QGroundControl .plan JSON) or 'mavlink' (QGC WPL 110 text).")]
     = "qgc",
     altitude_m: Annotated[float | None, typer.Option(
-        "--altitude-m", help="Flight altitude above home for aerial robots [m].")] = None,
+        "--altitude-m", help="Flight altitude above home for aerial robots, in metres.")] = None,
     firmware: Annotated[str, typer.Option(
         help="Autopilot firmware written into a .plan: 'px4' or 'ardupilot'.")] = "px4",
     as_json: JsonOpt = False,
