@@ -298,6 +298,11 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
     return app
 
 
+MAX_ABS_VALUE = 1e12
+"""No SPEC §3 quantity is larger in magnitude (beyond it, a stamp is epoch ms, a position is
+not in a local metric frame); NaN passes here and the session reports it."""
+
+
 def check_samples(samples: list[dict]) -> None:
     """Types of the SPEC §3 columns; deeper checks (order, gaps) are the session's."""
     from orange_plan.telemetry.recording import NUMERIC_COLUMNS, TEXT_COLUMNS
@@ -309,6 +314,10 @@ def check_samples(samples: list[dict]) -> None:
             if key in NUMERIC_COLUMNS and value is not None and (
                     isinstance(value, bool) or not isinstance(value, (int, float))):
                 raise InputError(f"samples[{i}].{key}: expected a number, got {value!r:.40}")
+            if key in NUMERIC_COLUMNS and isinstance(value, (int, float)) and \
+                    not isinstance(value, bool) and abs(value) > MAX_ABS_VALUE:
+                raise InputError(f"samples[{i}].{key}: {value:g} is out of range "
+                                 f"(|value| <= {MAX_ABS_VALUE:g})")
             if key in TEXT_COLUMNS and value is not None and not isinstance(value, str):
                 raise InputError(f"samples[{i}].{key}: expected a string, got {value!r:.40}")
             if isinstance(value, (dict, list)):
