@@ -46,10 +46,9 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    """The service on http://127.0.0.1:PORT, in a thread, for the module's tests."""
-    app = create_app(tmp_path_factory.mktemp("page") / "m.sqlite", token_from_env=False)
+def start_server(db, token=None):
+    """The service on http://127.0.0.1:PORT in a thread; returns (base URL, stop)."""
+    app = create_app(db, token=token, token_from_env=False)
     port = free_port()
     srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=srv.run, daemon=True)
@@ -59,9 +58,19 @@ def server(tmp_path_factory):
         if time.time() > deadline or not thread.is_alive():
             pytest.fail("uvicorn did not start")
         time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}"
-    srv.should_exit = True
-    thread.join(timeout=10)
+
+    def stop():
+        srv.should_exit = True
+        thread.join(timeout=10)
+
+    return f"http://127.0.0.1:{port}", stop
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    url, stop = start_server(tmp_path_factory.mktemp("page") / "m.sqlite")
+    yield url
+    stop()
 
 
 @pytest.fixture(scope="module")
@@ -82,9 +91,12 @@ def browser():
     shutil.rmtree(profile, ignore_errors=True)
 
 
-def post(url: str, body: dict) -> dict:
+def post(url: str, body: dict, token: str | None = None) -> dict:
+    headers = {"Content-Type": "application/json"}
+    if token:
+        headers["Authorization"] = f"Bearer {token}"
     req = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST",
-                                 headers={"Content-Type": "application/json"})
+                                 headers=headers)
     try:
         with urllib.request.urlopen(req, timeout=120) as r:
             return json.loads(r.read())
@@ -169,3 +181,25 @@ def test_docs_page_loads_with_no_external_requests(server, browser):
     assert any(u.endswith("/docs-assets/swagger-ui-bundle.js") for u in urls)
     external = [u for u in urls if is_external(u, server)]
     assert not external, external
+
+
+def test_operator_page_with_a_token(tmp_path, browser):
+    url, stop = start_server(tmp_path / "m.sqlite", token="page-secret")
+    try:
+        post(f"{url}/missions", {"scenario": "rusti_v1_box", "n_vertices": 300}, "page-secret")
+        wait = WebDriverWait(browser, 30, poll_frequency=0.2)
+        browser.get(f"{url}/")  # no token yet: the page asks for it
+        wait.until(lambda d: d.find_element(By.ID, "token-form").is_displayed())
+        assert "token" in browser.find_element(By.ID, "connection").text
+        browser.find_element(By.ID, "token").send_keys("page-secret")
+        browser.find_element(By.CSS_SELECTOR, "#token-form button").click()
+        wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#tour line")) > 5)
+        assert not browser.find_element(By.ID, "token-form").is_displayed()
+        # or from the address's fragment (never sent to the server), kept for the tab
+        browser.execute_script("sessionStorage.clear()")
+        browser.get("about:blank")
+        browser.get(f"{url}/#token=page-secret")
+        wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#tour line")) > 5)
+        assert "token" not in browser.current_url
+    finally:
+        stop()

@@ -391,3 +391,47 @@ def test_bad_database_file_is_refused(tmp_path):
     bad.write_text("this is not a database" * 100)
     with pytest.raises(InputError, match="mission database"):
         create_app(bad, token_from_env=False)
+
+
+def test_planning_does_not_block_other_requests(tmp_path):
+    """A mission being planned (seconds, in the worker threadpool) does not stop the server
+    from answering others."""
+    import socket
+    import threading
+    import time
+
+    import httpx
+
+    uvicorn = pytest.importorskip("uvicorn")
+    app = create_app(tmp_path / "m.sqlite", token_from_env=False, warm_up=False)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    server = threading.Thread(target=srv.run, daemon=True)
+    server.start()
+    while not srv.started:
+        time.sleep(0.05)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        result = {}
+
+        def plan():
+            result["r"] = httpx.post(f"{url}/missions", timeout=300,
+                                     json={"scenario": SCENARIO, "n_vertices": 4000})
+
+        planning = threading.Thread(target=plan)
+        planning.start()
+        time.sleep(0.3)
+        t0 = time.perf_counter()
+        health = httpx.get(f"{url}/health", timeout=30)
+        listed = httpx.get(f"{url}/missions", timeout=30)
+        elapsed = time.perf_counter() - t0
+        was_planning = planning.is_alive()
+        planning.join()
+        assert health.status_code == 200 and listed.status_code == 200
+        assert was_planning and elapsed < 1.0, (was_planning, elapsed)
+        assert result["r"].status_code == 201
+    finally:
+        srv.should_exit = True
+        server.join(timeout=10)
