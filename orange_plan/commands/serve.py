@@ -1,0 +1,80 @@
+"""``orange-plan serve``: the mid-mission replanning HTTP API and the operator page."""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import socket
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from orange_plan.cli import app, handles_errors
+from orange_plan.errors import InputError
+
+
+@app.command("serve")
+@handles_errors
+def serve_cmd(
+    host: Annotated[str, typer.Option(help="Address to bind; a non-loopback address needs "
+                                           "ORANGE_PLAN_TOKEN set.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port.")] = 8000,
+    db: Annotated[Path, typer.Option(
+        help="SQLite file holding missions and their acknowledged telemetry.")] = Path(
+        "orange_plan.sqlite"),
+    scenarios: Annotated[Path | None, typer.Option(
+        help="Folder of scenarios a mission may name (default: the repository's "
+             "scenarios/).")] = None,
+    maps: Annotated[Path | None, typer.Option(
+        help="Folder of maps a scenario may name (default: the repository's maps/).")] = None,
+    max_body_bytes: Annotated[int, typer.Option(
+        min=1024, help="Largest request body accepted \\[bytes]; larger ones get 413.")]
+        = 8 * 1024 * 1024,
+) -> None:
+    """Serve the replanning API (docs at /docs, OpenAPI at /openapi.json) and the operator
+    page (/). Missions and every acknowledged telemetry batch live in --db; a restart replays
+    them. With ORANGE_PLAN_TOKEN set, every /missions... request needs that bearer token."""
+    import uvicorn
+
+    from orange_plan.service.app import TOKEN_ENV, create_app
+    from orange_plan.service.limits import Limits
+
+    token = os.environ.get(TOKEN_ENV)
+    check_bind(host, token)
+    for folder, what in ((scenarios, "--scenarios"), (maps, "--maps")):
+        if folder is not None and not folder.is_dir():
+            raise InputError(f"{what} {folder}: not a folder")
+    service = create_app(db, token=token, scenarios_dir=scenarios, maps_dir=maps,
+                         limits=Limits(max_body_bytes=max_body_bytes))
+    uvicorn.run(service, host=host, port=port, log_level="info",
+                h11_max_incomplete_event_size=64 * 1024)
+
+
+def is_loopback(host: str) -> bool:
+    """True when every address ``host`` names is a loopback address."""
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        pass
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except OSError:
+        return False
+    return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback
+                               for i in infos)
+
+
+def check_bind(host: str, token: str | None) -> None:
+    """Refuse a non-loopback address without a token (anyone on the network could drive the
+    robot's plan).
+
+    Raises
+    ------
+    InputError
+        Non-loopback ``host`` and no token.
+    """
+    if not is_loopback(host) and not (token and token.strip()):
+        raise InputError(f"--host {host} is reachable from other machines: set "
+                         "ORANGE_PLAN_TOKEN to a secret token first (clients then send "
+                         "'Authorization: Bearer <token>'), or bind 127.0.0.1")
