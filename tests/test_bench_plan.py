@@ -194,3 +194,16 @@ def test_cli_refuses_a_missing_planner_and_bad_args(tmp_path):
     assert code == 2 and "not available" in stderr
     code, _, stderr = run_cli("bench", "plan", "--quick", "--png", tmp_path / "x.jpg")
     assert code == 2 and ".png" in stderr
+
+
+def test_physical_bound_keeps_nothing_back(tiny, tmp_path):
+    from orange_plan.planning.tour import min_energy_per_m
+
+    ctx = load_context(tiny)
+    r = ctx.scenario.mission.sensor_radius_m
+    drive = ctx.scenario.battery.usable_J / min_energy_per_m(ctx)
+    assert 2 * r * drive + np.pi * r * r < ctx.world.map.free_space.area  # energy-bound here
+    assert coverage_bound_m2(ctx) == pytest.approx(2 * r * drive + np.pi * r * r)
+    big = load_context(write_world(tmp_path, width_m=40, height_m=30, rated_energy_Wh=50.0,
+                                   name="big"))
+    assert coverage_bound_m2(big) == pytest.approx(big.world.map.free_space.area)

@@ -18,8 +18,9 @@ truths and seeds for the three methods. Per flight:
 * stranded: the battery's usable energy ran out before the route ended, or the route did not
   end at home;
 * energy left at home: the truth's usable energy minus the energy drawn (negative: stranded);
-* coverage / bound: coverage over SPEC §4 ``coverage_bound_m2`` (from the planner's summary;
-  ``coverage_bound_m2`` here when the planner gives none).
+* coverage / bound: coverage over the physical bound of SPEC §4 with nothing kept back
+  (``coverage_bound_m2``: the same for the three methods; the planner's own summary bound,
+  which keeps its reserve back, is in ``--json`` as ``planner_bound_m2``).
 
 Reported per scenario and method: medians over the flights, strandings as a count, planner
 seconds (wall clock, median over a family's maps). The random family ("random") is
@@ -100,8 +101,10 @@ class MethodResult:
     ----------
     scenario, method : names
     planner_seconds : wall-clock planning time, median over the scenario's maps [s]
-    coverage_bound_m2 : SPEC §4 bound, median over the maps [m^2]
+    coverage_bound_m2 : physical bound (``coverage_bound_m2``), median over the maps [m^2]
     planned_coverage_m2 : the plan's own coverage figure, median over the maps [m^2]
+    planner_bound_m2 : the planner's summary ``coverage_bound_m2`` (reserve kept back),
+        median over the maps [m^2]
     flights : one per truth
     error : why the method produced no plan (then no flights)
     """
@@ -114,6 +117,7 @@ class MethodResult:
     flights: tuple[Flight, ...] = ()
     error: str | None = None
     time_limit_s: float | None = None
+    planner_bound_m2: float | None = None
 
     def _median(self, key: str) -> float | None:
         values = [getattr(f, key) for f in self.flights]
@@ -151,7 +155,8 @@ class MethodResult:
                 "over_time_limit": self.over_time_limit,
                 "duration_s": self._median("duration_s"),
                 "coverage_bound_m2": self.coverage_bound_m2,
-                "planned_coverage_m2": self.planned_coverage_m2, "error": self.error}
+                "planned_coverage_m2": self.planned_coverage_m2,
+                "planner_bound_m2": self.planner_bound_m2, "error": self.error}
 
 
 @dataclass(frozen=True)
@@ -248,14 +253,22 @@ def scenario_specs(names: Sequence[str], folder: Path, family_size: int = 4,
 
 
 def coverage_bound_m2(ctx) -> float:
-    """SPEC §4 bound when a planner gives none: ``min(free area, 2 r E / e + pi r^2)`` with E
-    the usable energy and e the simplified range's energy per metre (flat default ground)."""
-    from orange_plan.physics.range import simplified_range
+    """Physical coverage bound of a scenario, the same for every method [m^2].
 
-    r = ctx.scenario.mission.sensor_radius_m
-    e = simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr).energy_per_m_J
-    free = ctx.world.map.free_space.area
-    return float(min(free, 2 * r * ctx.scenario.battery.usable_J / e + math.pi * r * r))
+    ``min(free area, 2 r L + pi r^2)`` (SPEC §4) with ``L`` the farthest the robot can drive:
+    all the usable energy over the least energy per metre anywhere on the map
+    (``planning.tour.min_energy_per_m``), and with a time limit at most
+    ``v_max D time_limit_s``. Nothing is kept back: the planner's own summary bound
+    subtracts its reserve, which a method without one (the lawnmower) can exceed.
+    """
+    from orange_plan.planning.tour import min_energy_per_m
+
+    sc = ctx.scenario
+    r = sc.mission.sensor_radius_m
+    drive_m = sc.battery.usable_J / min_energy_per_m(ctx)
+    if sc.mission.time_limit_s is not None:
+        drive_m = min(drive_m, sc.robot.v_max_mps * ctx.duty_cycle * sc.mission.time_limit_s)
+    return float(min(ctx.world.map.free_space.area, 2 * r * drive_m + math.pi * r * r))
 
 
 def flown_footprint(world, xy, radius_m: float):
@@ -307,6 +320,7 @@ class _MapRun:
     flights: dict = field(default_factory=lambda: {m: [] for m in METHODS})
     bound_m2: float = math.nan
     time_limit_s: float | None = None
+    planner_bound: dict = field(default_factory=dict)
 
 
 def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
@@ -341,10 +355,8 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
         plan = plans.get(method)
         if plan is not None:
             run.planned[method] = (plan.summary or {}).get("coverage_m2")
-            if math.isnan(run.bound_m2) and (plan.summary or {}).get("coverage_bound_m2"):
-                run.bound_m2 = float(plan.summary["coverage_bound_m2"])
-    if math.isnan(run.bound_m2):
-        run.bound_m2 = coverage_bound_m2(ctx)
+            run.planner_bound[method] = (plan.summary or {}).get("coverage_bound_m2")
+    run.bound_m2 = coverage_bound_m2(ctx)
     truths = calibration_truths(ctx, len(seeds), seed=truth_seed)
     with tempfile.TemporaryDirectory(prefix="orange-bench-") as tmp:
         routes = {m: _route_via_geojson(plans[m], Path(tmp), m) for m in ("distance", "physics")
@@ -380,12 +392,14 @@ def _merge(spec: ScenarioSpec, runs: list[_MapRun], methods) -> list[MethodResul
         secs = [r.seconds[method] for r in runs if method in r.seconds]
         planned = [r.planned[method] for r in runs if r.planned.get(method) is not None]
         errors = [r.errors[method] for r in runs if method in r.errors]
+        pbound = [r.planner_bound[method] for r in runs if r.planner_bound.get(method)]
         flights = tuple(f for r in runs for f in r.flights[method])
         out.append(MethodResult(
             spec.name, method, float(statistics.median(secs)) if secs else math.nan,
             float(statistics.median(r.bound_m2 for r in runs)),
             float(statistics.median(planned)) if planned else None, flights,
-            errors[0] if errors else None, runs[0].time_limit_s if runs else None))
+            errors[0] if errors else None, runs[0].time_limit_s if runs else None,
+            float(statistics.median(pbound)) if pbound else None))
     return out
 
 
