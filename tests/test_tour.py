@@ -108,3 +108,27 @@ def test_time_limit_is_kept(hilly):
     assert plan.t_s[-1] <= 120.0 * (1 + 1e-6)
     free = plan_tour(hilly, n_vertices=250, bitstar_s=0)
     assert free.summary["coverage_m2"] >= plan.summary["coverage_m2"]
+
+
+def test_warm_replan_reuses_the_roadmap_and_keeps_every_margin(hilly):
+    from orange_plan.planning.tour import TourPlanner
+
+    planner = TourPlanner(hilly, n_vertices=250, bitstar_legs=0)
+    first = planner.plan()
+    roadmap = planner.setup.roadmap
+    mid = len(first.xy_m) // 3
+    start = StartState(tuple(first.xy_m[mid]), float(first.energy_used_J[mid]),
+                       float(first.t_s[mid]), first.covered)
+    heavier = hilly.model.with_theta({n: 1.3 * v for n, v in hilly.model.as_dict().items()})
+    again = planner.plan(start, model=heavier)
+    assert planner.setup.roadmap is roadmap  # warm: the first plan's roadmap is kept
+    assert np.allclose(again.xy_m[0], start.xy_m)
+    assert np.allclose(again.xy_m[-1], hilly.world.home_xy_m)
+    assert np.all(again.margin_J >= 0)
+    assert hilly.world.segments_free(again.xy_m[:-1], again.xy_m[1:]).all()
+    # Its energies are the heavier model's, as a cold plan's would be.
+    sc = hilly.scenario
+    exact = path_energy(heavier, hilly.world, again.xy_m, again.speed_mps[:-1], sc.mission.duty_cycle,
+                        hilly.sensor_rate_Hz, accel_max_mps2=sc.robot.accel_max_mps2)
+    assert again.energy_used_J[-1] - again.energy_used_J[0] == pytest.approx(exact.total_J,
+                                                                             rel=1e-9)

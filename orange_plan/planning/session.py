@@ -486,11 +486,15 @@ class MissionSession:
         return plan
 
     def _plan(self, start: StartState) -> Plan:
-        from orange_plan.planning.tour import plan_tour
+        """A tour with the online model and the current world. The first plan builds the
+        roadmap and candidate legs; later replans reuse them (``tour.TourPlanner``: a warm
+        replan only adds the robot's position to the roadmap), unless the map changed."""
+        from orange_plan.planning.tour import TourPlanner
 
-        ctx = replace(self.ctx, model=self.online_model, world=self.world_now)
-        return plan_tour(ctx, start, n_vertices=self.n_vertices, seed=self.seed,
-                         **self.planner_kwargs)
+        if getattr(self, "_planner", None) is None:
+            self._planner = TourPlanner(self.ctx, n_vertices=self.n_vertices, seed=self.seed,
+                                        **self.planner_kwargs)
+        return self._planner.plan(start, model=self.online_model, world=self.world_now)
 
     # --- map updates ---------------------------------------------------------------------
     def update_map(self, obstacles=(), no_go=(), replan: bool = True) -> Decision:

@@ -127,6 +127,18 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     planning_ctx = ctx if cost == "physics" else distance_context(ctx)
     step("building the energy roadmap")
     setup = tour_setup(planning_ctx, start, n_vertices, seed, max_candidates, step)
+    return search_tour(planning_ctx, setup, start, t0=t0, step=step,
+                       optimise_speed=optimise_speed, bitstar_s=bitstar_s,
+                       bitstar_legs=bitstar_legs, seed=seed)
+
+
+def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=None,
+                optimise_speed: bool = True, bitstar_s: float = BITSTAR_S,
+                bitstar_legs: int = BITSTAR_LEGS, seed: int = 0) -> Plan:
+    """The tour search on a prepared setup: orienteering under the budgets, BIT* on the
+    costliest legs, speeds, and the exact per-vertex check, the budget lowered by any deficit
+    until every vertex keeps its margin (see the module docstring)."""
+    step = step or (lambda text: None)
     reach = setup.reach
     remaining = reach.energy_available_J - reach.energy_used_J
     reserve_guess, time_factor = _probe(setup)
@@ -145,13 +157,14 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
         step("BIT* on the costliest legs")
         walk_setup, ids, refined = refine_legs(setup, tour.nodes, bitstar_s, bitstar_legs, seed)
         step(f"speeds and homing check on {len(ids)} vertices")
-        plan, variance = evaluate_walk(planning_ctx, walk_setup, ids, start, optimise_speed)
+        plan, variance = evaluate_walk(ctx, walk_setup, ids, start, optimise_speed,
+                                       time_factor)
         energy_short = -float(plan.margin_J.min())
         overrun_s = float(plan.t_s[-1]) - start.time_s - time_left
         in_time = check_time_limit(float(plan.t_s[-1]) * (1 - TIME_TOLERANCE),
                                    ctx.scenario.mission.time_limit_s).within
         if energy_short <= 0 and in_time:
-            plan = _finish(planning_ctx, walk_setup, plan, tour, variance, start, t0)
+            plan = _finish(ctx, walk_setup, plan, tour, variance, start, t0)
             plan.summary["legs_refined_by_bitstar"] = refined
             return plan
         last_error = f"{max(energy_short, 0):.3g} J short, {max(overrun_s, 0):.3g} s over"
@@ -173,6 +186,95 @@ def _too_small(ctx, reach: Reachability, last_error) -> None:
         f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and the "
         f"reserve kept ({remaining / 1e3:,.3g} kJ left of {reach.energy_available_J / 1e3:,.3g}"
         f" kJ): the battery is too small to leave home, or the time limit is too short{detail}")
+
+
+class TourPlanner:
+    """Plans a tour, then replans from later states on the same roadmap and candidate legs.
+
+    The first ``plan`` builds the setup (roadmap, fields, candidates, leg matrices: most of a
+    plan's time). Later calls reuse it (``warm_setup``): the robot's position joins the
+    roadmap as one vertex with one Dijkstra, the leg energies are rescaled to the current
+    model, and only the search and the exact check run again. The exact check is the same as
+    a cold plan's, with the current model, so a warm plan is as safe; the reuse only costs
+    optimality where the model's change would have moved the roadmap's paths. A changed world
+    (map update) needs a new planner.
+
+    Parameters
+    ----------
+    ctx : Context of the first plan (its world is kept; later models may differ)
+    n_vertices, seed, max_candidates : as ``plan_tour``
+    search : keyword arguments of ``search_tour`` (optimise_speed, bitstar_s, bitstar_legs)
+    """
+
+    def __init__(self, ctx, *, n_vertices: int = 5000, seed: int = 0,
+                 max_candidates: int = MAX_CANDIDATES, **search):
+        self.ctx = ctx
+        self.n_vertices, self.seed, self.max_candidates = n_vertices, seed, max_candidates
+        self.search = {"seed": seed, **search}
+        self.setup: TourSetup | None = None
+
+    def plan(self, start: StartState | None = None, model=None, world=None,
+             progress=None) -> Plan:
+        """A tour from ``start`` with ``model`` and ``world`` (default: the context's). A
+        world with another map (obstacles, no-go zones) than the setup's is planned cold."""
+        t0 = _time.perf_counter()
+        start = start or StartState()
+        ctx = replace(self.ctx, model=model or self.ctx.model, world=world or self.ctx.world)
+        step = progress or (lambda text: None)
+        if self.setup is not None and ctx.world.map is not self.setup.reach.exact.world.map:
+            self.ctx, self.setup = ctx, None
+        if self.setup is None:
+            self.setup = tour_setup(ctx, start, self.n_vertices, self.seed,
+                                    self.max_candidates, step)
+            setup = self.setup
+        else:
+            setup = warm_setup(self.setup, ctx, start)
+        return search_tour(ctx, setup, start, t0=t0, step=step, **self.search)
+
+
+def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
+    """``setup`` re-aimed at a new start state and model (see ``TourPlanner``)."""
+    reach = setup.reach
+    old_model = reach.fast.model
+    fast, exact = (replace(c, model=ctx.model, world=ctx.world) for c in (reach.fast, reach.exact))
+    home = np.asarray(reach.home_xy_m)
+    xy = home if start.xy_m is None else np.asarray(start.xy_m, float)
+    if not bool(ctx.world.is_free(*xy)):
+        raise InputError(f"start ({xy[0]:g}, {xy[1]:g}) m is outside the boundary or inside an "
+                         "obstacle / no-go zone")
+    roadmap = add_vertices(reach.fast, setup.roadmap, xy[None, :])
+    vertex = roadmap.n_vertices - 1
+    dist, pred = dijkstra(roadmap.graph(), directed=True, indices=[vertex],
+                          return_predecessors=True)
+    point_vertex = np.r_[vertex, setup.point_vertex[1:]]
+    if not np.isfinite(dist[0, setup.point_vertex[1]]):
+        raise InputError(f"home is not reachable on the roadmap from ({xy[0]:g}, {xy[1]:g}) m")
+    scale = _per_metre(ctx.model, ctx) / _per_metre(old_model, ctx)
+    p = setup.problem
+    travel_J, travel_s = p.travel_J * scale, p.travel_s.copy()
+    travel_J[0] = dist[0, point_vertex] * scale
+    travel_s[0] = _leg_times(ctx, fast.speed_mps, roadmap.xy_m, pred)[0, point_vertex]
+    travel_J[:, 0] = travel_s[:, 0] = np.inf  # nothing returns to the start
+    grid = setup.grid
+    covered = (np.zeros(len(grid.xy_m), bool) if start.covered is None
+               else _mask(grid, grid.cells_in(start.covered)))
+    problem = replace(p, travel_J=travel_J, travel_s=travel_s, service_J=p.service_J * scale,
+                      covered=covered)
+    predecessors = np.pad(setup.predecessors, ((0, 0), (0, 1)), constant_values=-9999)
+    predecessors[0] = pred[0]
+    to_home = energy_field(roadmap, roadmap.home_index, towards=True)
+    warm = replace(reach, fast=fast, exact=exact, roadmap=roadmap, start_index=vertex,
+                   energy_used_J=float(start.energy_used_J))
+    return replace(setup, reach=warm, problem=problem, predecessors=predecessors,
+                   point_vertex=point_vertex, roadmap=roadmap, to_home=to_home)
+
+
+def _per_metre(model, ctx) -> float:
+    """Battery energy per metre of a model on flat default ground at the cruise speed [J/m]."""
+    from orange_plan.physics.range import flat_state
+
+    state = flat_state(ctx.cruise_speed_mps, ctx.world.default_crr, ctx.sensor_rate_Hz)
+    return float(model.segment_energy(state, 1.0, ctx.duty_cycle).total_J)
 
 
 def distance_context(ctx):
@@ -537,7 +639,8 @@ def sensing_speed_mps(ctx) -> float:
 
 
 def evaluate_walk(ctx, setup: TourSetup, ids: np.ndarray, start: StartState,
-                  optimise_speed: bool = True) -> tuple[Plan, np.ndarray]:
+                  optimise_speed: bool = True,
+                  time_factor: float = 1.0) -> tuple[Plan, np.ndarray]:
     """Speeds for a walk and its exact per-vertex figures (energies, return, reserve, margin).
 
     Returns the Plan (its summary completed by ``_finish``) and the predictive variance of
@@ -545,7 +648,7 @@ def evaluate_walk(ctx, setup: TourSetup, ids: np.ndarray, start: StartState,
     """
     reach = setup.reach
     xy = setup.roadmap_xy_m[ids]
-    speeds = _speeds(ctx, xy, start) if optimise_speed else None
+    speeds = _speeds(ctx, xy, start, time_factor) if optimise_speed else None
     if speeds is None:
         speeds = np.full(len(xy) - 1, reach.exact.speed_mps)
     walk = drive(reach.exact, xy, speeds)
@@ -561,18 +664,23 @@ def evaluate_walk(ctx, setup: TourSetup, ids: np.ndarray, start: StartState,
     return plan, _variance(reach, needed, gradient, always=True)
 
 
-def _speeds(ctx, xy: np.ndarray, start: StartState):
-    """Per-segment speeds from the CasADi optimiser, None when it cannot help."""
+def _speeds(ctx, xy: np.ndarray, start: StartState, time_factor: float = 1.0):
+    """Per-segment speeds from the CasADi optimiser, None when it cannot help.
+
+    The optimiser sees constant-speed pieces; the time the robot really takes (ramps and
+    stops) is ``time_factor`` longer (``_probe``), so its limit is tightened by that factor
+    and the exact check of ``evaluate_walk`` (which drives the profile anyway) decides.
+    """
     from orange_plan.planning.speed import SpeedSolver, cut_path, speed_problem
 
     n_seg = len(xy) - 1
     pieces = cut_path(ctx.world, xy, n_seg)
     limit = ctx.scenario.mission.time_limit_s
-    limit = None if limit is None else limit - start.time_s
+    limit = None if limit is None else (limit - start.time_s) / time_factor
     try:
         problem = speed_problem(ctx, pieces, time_limit_s=limit)
         problem = replace(problem, piece_v_max_mps=_lane_caps(ctx, xy))
-        profile = SpeedSolver(ctx.model).solve(problem, model_world=ctx.world)
+        profile = SpeedSolver(ctx.model).solve(problem)
     except (InputError, PlanningError):
         return None
     return np.asarray(profile.speed_mps, float)
