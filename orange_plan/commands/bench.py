@@ -174,3 +174,60 @@ def load_planner(spec: str):
     if not callable(fn):
         raise InputError(f"--planner {spec}: not a function")
     return fn
+
+
+@bench_app.command("mission")
+@handles_errors
+def bench_mission_cmd(
+    missions: Annotated[int | None, typer.Option(
+        help="Simulated missions (default 500; 3 with --quick).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the first mission's truth.")] = 0,
+    maps: Annotated[int, typer.Option(help="Maps of the random family flown in turn.")] = 10,
+    vertices: Annotated[int, typer.Option(help="Roadmap vertices of every planner.")] = 1000,
+    workers: Annotated[int, typer.Option(help="Processes flying missions at once.")] = 2,
+    quick: Annotated[bool, typer.Option(
+        help="Small run for tests: 3 missions on one 80 m x 60 m map, 400 vertices, 1 process.")]
+        = False,
+    png: Annotated[Path | None, typer.Option(help="PNG: coverage vs strandings.")] = None,
+    out_file: Annotated[Path | None, typer.Option(
+        "--out", help="Write the JSON result here every 10 missions (partial) and at the end.")]
+        = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Monte Carlo missions under truths within and beyond the calibration uncertainty:
+    (a) the session with replanning, (b) the first plan open loop, (c) a lawnmower with the
+    PX4-style return rule, (d) the oracle plan made with the true model (issue #10)."""
+    import json
+
+    from orange_plan.atomic import atomic_path
+    from orange_plan.bench.mission import mission_figure, mission_table, run_mission_study
+    from orange_plan.progress import bar
+
+    missions = missions if missions is not None else (3 if quick else 500)
+    if png is not None and png.suffix.lower() != ".png":
+        raise InputError(f"--png {png}: the file name must end in .png")
+    kwargs = {"n_vertices": 400 if quick else vertices}
+    if quick:
+        kwargs |= {"width_m": 80.0, "height_m": 60.0}
+        maps, workers = 1, 1
+
+    def save(result) -> None:
+        if out_file is not None:
+            with atomic_path(out_file, suffix=".json") as tmp:
+                tmp.write_text(json.dumps(result, indent=1), encoding="utf-8")
+
+    with bar(missions, "missions", wanted(as_json)) as tick:
+        result = run_mission_study(missions, seed, maps, workers, kwargs, tick=tick,
+                                   on_progress=save)
+    save(result)
+    if png is not None:
+        mission_figure(result, png)
+    if as_json:
+        print_json(result)
+        return
+    out.print(mission_table(result))
+    ratio = result["session_over_oracle"]
+    out.print(f"session / oracle coverage: {'-' if ratio is None else format(ratio, '.2f')} "
+              f"(target >= 0.85); {result['runtime_s']:.0f} s")
+    if png is not None:
+        out.print(f"wrote {png}")

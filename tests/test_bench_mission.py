@@ -1,0 +1,101 @@
+"""bench.mission (``orange-plan bench mission``): a quick run on a tiny world completes with
+every column, and the energy accounting strands a robot far heavier than its model (structure
+and bookkeeping, never the measured figures of README)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import run_cli
+
+from orange_plan.bench.mission import (
+    METHODS,
+    MissionSpec,
+    mission_specs,
+    run_one_mission,
+    stranding_upper_bound,
+    summarise,
+)
+
+pytestmark = pytest.mark.timeout(240)
+
+TINY = {"width_m": 80.0, "height_m": 60.0, "n_vertices": 400}
+
+ROW_KEYS = ("family", "method", "missions", "errors", "strandings", "stranding_upper95",
+            "energy_left_at_home_kJ", "coverage_m2", "coverage_over_oracle",
+            "coverage_over_oracle_median", "replans", "returned_early", "seconds")
+FLIGHT_KEYS = ("coverage_m2", "energy_left_J", "stranded", "duration_s", "replans",
+               "returned_early", "seconds")
+
+
+def test_quick_run_completes_with_every_column(tmp_path):
+    out, png = tmp_path / "mission.json", tmp_path / "mission.png"
+    code, stdout, stderr = run_cli("bench", "mission", "--quick", "--json", "--out", out,
+                                   "--png", png)
+    assert code == 0, stderr
+    result = json.loads(stdout)
+    assert result["complete"] and result["missions"] == 3 == len(result["flights"])
+    assert json.loads(out.read_text())["missions"] == 3
+    assert png.stat().st_size > 10_000
+    assert [r["method"] for r in result["rows"]] == list(METHODS)
+    for row in result["rows"] + result["by_family"] + result["by_kind"]:
+        assert set(ROW_KEYS) <= set(row)
+    for row in result["rows"]:
+        assert row["missions"] == 3 and row["errors"] == 0
+        assert row["coverage_m2"] > 0
+    oracle = next(r for r in result["rows"] if r["method"] == "oracle")
+    assert oracle["coverage_over_oracle"] == pytest.approx(1.0)
+    assert result["session_over_oracle"] is not None
+    families = [f["family"] for f in result["flights"]]
+    assert families == ["within", "beyond", "within"]
+    for flight in result["flights"]:
+        for method in METHODS:
+            assert set(FLIGHT_KEYS) <= set(flight[method])
+
+
+def test_far_heavier_truth_without_replanning_strands():
+    """+80 kg on the 25 kg robot: the first tour flown open loop, and the session told not to
+    replan, both run out of energy before home; the oracle (true model) does not."""
+    spec = MissionSpec(0, heavier_kg=80.0, replanning=False, **TINY)
+    result = run_one_mission(spec, 3)
+    assert "+ 80 kg" in result["truth"]
+    for method in ("open_loop", "session"):
+        assert result[method]["stranded"], method
+        assert result[method]["energy_left_J"] < 0
+        assert result[method]["replans"] == 0
+    assert not result["oracle"]["stranded"]
+    assert result["oracle"]["energy_left_J"] > 0
+    row = {r["method"]: r for r in summarise([result])}
+    assert row["open_loop"]["strandings"] == 1
+    assert row["open_loop"]["energy_left_at_home_kJ"] is None  # none got home
+
+
+def test_one_mission_is_pure():
+    spec = MissionSpec(0, family="beyond", kind="mass", methods=("open_loop", "oracle"), **TINY)
+    a, b = run_one_mission(spec, 5), run_one_mission(spec, 5)
+    for method in spec.methods:
+        a[method].pop("seconds"), b[method].pop("seconds")
+        assert a[method] == b[method]
+    assert a["truth"] == b["truth"] and a["truth"].startswith("calibration draw, payload")
+
+
+def test_specs_alternate_families_and_deal_maps():
+    specs = mission_specs(10, n_maps=3)
+    assert [s.family for s in specs[:4]] == ["within", "beyond", "within", "beyond"]
+    assert [s.kind for s in specs[1::2]] == ["wind", "mass", "ageing", "terrain", "wind"]
+    assert [s.map_seed for s in specs[:4]] == [0, 1, 2, 0]
+
+
+def test_stranding_upper_bound():
+    assert stranding_upper_bound(0, 500) == pytest.approx(1 - 0.05 ** (1 / 500))
+    assert stranding_upper_bound(0, 500) < 0.01
+    assert stranding_upper_bound(3, 3) == 1.0
+    assert stranding_upper_bound(0, 0) is None
+
+
+def test_bad_arguments_are_one_line_errors():
+    code, _, stderr = run_cli("bench", "mission", "--missions", "0")
+    assert code == 2 and "--missions = 0 must be >= 1" in stderr
+    code, _, stderr = run_cli("bench", "mission", "--quick", "--png", "x.jpg")
+    assert code == 2 and "must end in .png" in stderr
