@@ -52,6 +52,46 @@ def swagger_assets_dir() -> Path:
     return Path(fastapi_offline.__file__).parent / "static"
 
 
+UNAUTHORISED = ("missing or wrong bearer token: send 'Authorization: Bearer <token>' (the "
+                "server's ORANGE_PLAN_TOKEN)")
+PROTECTED = ("/missions", "/scenarios")
+"""Path prefixes that need the token (the page, docs, schema, health and static files do
+not: they hold no mission data)."""
+
+
+class BearerFirst:
+    """Pure ASGI: a request to a protected path without the right bearer token gets 401
+    before anything else happens (its body is neither read nor parsed, so an unauthorised
+    client cannot make the server parse megabytes of JSON, and gets 401, not 400/422/413)."""
+
+    def __init__(self, app, token: str):
+        self.app = app
+        self.token = token.encode()
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or not _protected(scope.get("path", "")):
+            await self.app(scope, receive, send)
+            return
+        given = b""
+        for name, value in scope.get("headers", ()):
+            if name == b"authorization":
+                given = value
+        scheme, _, credentials = given.partition(b" ")
+        if scheme.lower() == b"bearer" and hmac.compare_digest(credentials.strip(), self.token):
+            await self.app(scope, receive, send)
+            return
+        payload = json.dumps({"detail": UNAUTHORISED}).encode()
+        await send({"type": "http.response.start", "status": 401,
+                    "headers": [(b"content-type", b"application/json"),
+                                (b"content-length", str(len(payload)).encode()),
+                                (b"www-authenticate", b"Bearer")]})
+        await send({"type": "http.response.body", "body": payload})
+
+
+def _protected(path: str) -> bool:
+    return any(path == p or path.startswith(p + "/") for p in PROTECTED)
+
+
 # --- request bodies ------------------------------------------------------------------------
 class MissionCreate(BaseModel):
     """Start a mission: a scenario by name or as TOML text, and the planner's roadmap options."""
@@ -168,19 +208,21 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
     app.state.token = token
     app.state.limits = limits
     app.add_middleware(BodySizeLimit, max_bytes=limits.max_body_bytes)
+    if token is not None:  # outermost: no body of an unauthorised request is read or parsed
+        app.add_middleware(BearerFirst, token=token)
     _handlers(app)
 
     bearer = HTTPBearer(auto_error=False, description="the server's ORANGE_PLAN_TOKEN")
 
     def authorised(creds: HTTPAuthorizationCredentials | None = Depends(bearer)  # noqa: B008
                    ) -> None:
+        # BearerFirst has refused a wrong token already; this declares the scheme in the
+        # OpenAPI schema and guards an app used without the middleware
         if token is None:
             return
         given = (creds.credentials if creds is not None else "").encode()
         if creds is None or not hmac.compare_digest(given, token.encode()):
-            raise HTTPException(401, "missing or wrong bearer token: send 'Authorization: "
-                                     "Bearer <token>' (the server's ORANGE_PLAN_TOKEN)",
-                                headers={"WWW-Authenticate": "Bearer"})
+            raise HTTPException(401, UNAUTHORISED, headers={"WWW-Authenticate": "Bearer"})
 
     auth = [Depends(authorised)]
 
