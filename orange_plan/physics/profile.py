@@ -248,3 +248,234 @@ def profile_gradient(model, steps, step_speed_mps, accel_max_mps2: float, duty_c
     _, state = drive_path(steps, step_speed_mps, accel_max_mps2, duty_cycle, wind_xy_mps,
                           sensor_rate_Hz, dt_s, stop_every_s)
     return model.power_jacobian(state).sum(axis=0) * dt_s
+
+
+# --- many independent single runs at once ---------------------------------------------------
+
+
+def _drive_kinematics(edges_list, speed_list, cos_list, accel_max: float, dt: float,
+                      duty: float, stop_every_s: float) -> list[dict]:
+    """``Driver.run``'s arrays for many independent single runs (``repeat=False``), stepped
+    together: one numpy loop over time steps with arrays of one entry per path.
+
+    Notes
+    -----
+    Each path follows the scalar ``Driver``'s arithmetic, the same operations in the same
+    order, so its samples are the same floating-point numbers. What differs is form only:
+
+    * sub-step lookup: a pointer per path into one array of all paths' sub-step end edges
+      (each path's last edge replaced by ``inf``), advanced while the next edge is ``<= s``.
+      The arclength never decreases, so the pointer only moves forwards and lands where
+      ``min(bisect_right(edges, min(s, length)) - 1, n - 1)`` does; when every sub-step (but
+      a path's last) is longer than a time step can drive, one advance per step is enough.
+    * duty-cycle phases as flags, checked only when they can change (a moving time cannot
+      pass a stop before the clock does: both add up the same ``dt``). After arrival the
+      ``Driver`` never reads its phase again (the target is 0), so it is not kept up there.
+    * a finished path (at rest at its end, target 0) no longer changes; it is no longer
+      recorded. ``accel`` is ``(v[k + 1] - v[k]) / dt`` of the recorded speeds, the division
+      ``Driver`` does.
+    """
+    n = len(edges_list)
+    if n == 0:
+        return []
+    n_sub = np.array([len(v) for v in speed_list], dtype=np.intp)
+    s_off = np.r_[0, np.cumsum(n_sub)[:-1]].astype(np.intp)
+    edges = [np.asarray(e, float) for e in edges_list]
+    upper = np.concatenate([np.r_[e[1:-1], np.inf] for e in edges])
+    length = np.array([e[-1] for e in edges])
+    speed = np.concatenate([np.asarray(v, float) for v in speed_list])
+    cos = np.concatenate([np.asarray(c, float) for c in cos_list])
+    creep = CREEP_FRACTION * speed
+
+    a, dt, duty, every = float(accel_max), float(dt), float(duty), float(stop_every_s)
+    a_dt, two_a = a * dt, 2 * a
+    inner = np.concatenate([np.diff(e[:-1]) for e in edges])  # sub-steps but the last
+    v_top = float(speed.max(initial=0.0))
+    single = inner.size == 0 or float(inner.min()) > v_top * dt * (1 + 1e-6) + 1e-9
+
+    zero, lo, hi = np.zeros(n), np.full(n, -a_dt), np.full(n, a_dt)
+    s, v, moving = np.zeros(n), np.zeros(n), np.zeros(n)
+    rem = length - s
+    stops = duty < 1.0
+    braking, stopped = np.zeros(n, bool), np.zeros(n, bool)
+    any_braking = any_stopped = False
+    next_stop = np.full(n, every)
+    first_stop = every
+    arrived, finished, waiting = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    halt = arrived
+    n_arrived = 0
+    g = s_off.copy()  # global sub-step index of each path
+    n_samples = np.zeros(n, dtype=np.intp)
+    chunk = 4096
+    rec_s, rec_v = np.empty((chunk, n)), np.empty((chunk + 1, n))
+    rec_g = np.empty((chunk, n), dtype=np.intp)
+    t, k = 0.0, 0
+    t_out = []
+    while True:
+        if k == rec_s.shape[0]:
+            rec_s = np.concatenate([rec_s, np.empty((chunk, n))])
+            rec_v = np.concatenate([rec_v, np.empty((chunk, n))])
+            rec_g = np.concatenate([rec_g, np.empty((chunk, n), dtype=np.intp)])
+        # sub-step: Driver's bisect on min(s, length), clipped to the last sub-step
+        g += upper[g] <= s
+        if not single:
+            while True:
+                ahead = upper[g] <= s
+                if not np.count_nonzero(ahead):
+                    break
+                g += ahead
+        cruise = speed[g]
+        # Driver._target
+        if stops:
+            changed = False
+            if t >= first_stop:  # moving <= t: no stop is due before
+                hit = moving >= next_stop  # next_stop is inf unless moving
+                if np.count_nonzero(hit):
+                    braking |= hit
+                    next_stop[hit] = np.inf
+                    any_braking = changed = True
+                first_stop = float(next_stop.min())
+            if any_braking:
+                rest = braking & (v <= zero)
+                if np.count_nonzero(rest):
+                    braking &= ~rest
+                    stopped |= rest
+                    any_braking = bool(np.count_nonzero(braking))
+                    any_stopped = changed = True
+            if any_stopped:
+                go = stopped & (t >= moving / duty)
+                if np.count_nonzero(go):
+                    stopped &= ~go
+                    next_stop = np.where(go, moving + every, next_stop)
+                    first_stop = float(next_stop.min())
+                    any_stopped = bool(np.count_nonzero(stopped))
+                    changed = True
+            if changed:
+                halt = arrived | braking | stopped
+        np.maximum(rem, zero, out=rem)
+        brake = np.sqrt(two_a * rem)
+        brake -= a_dt
+        np.maximum(brake, creep[g], out=brake)
+        target = np.minimum(cruise, brake, out=brake)
+        target[halt] = 0.0
+        # the step
+        dv = target - v
+        np.maximum(dv, lo, out=dv)
+        np.minimum(dv, hi, out=dv)
+        v_new = v + dv
+        np.maximum(zero, v_new, out=v_new)
+        t_out.append(t)
+        rec_s[k] = s
+        rec_v[k] = v
+        rec_g[k] = g
+        both = v + v_new
+        moving = np.where(both > zero, moving + dt, moving)  # v, v_new >= 0
+        both *= 0.5
+        both *= dt
+        both *= cos[g]
+        s = s + both
+        v, t = v_new, t + dt
+        k += 1
+        rem = length - s
+        arrived |= rem <= 1e-6
+        n_now = int(np.count_nonzero(arrived))
+        if n_now != n_arrived:
+            n_arrived = n_now
+            waiting = arrived & ~finished
+            halt = arrived | braking | stopped if stops else arrived
+        if n_arrived:
+            done = waiting & (v <= zero)
+            if np.count_nonzero(done):
+                done &= t >= moving / duty - 1e-9
+                if np.count_nonzero(done):
+                    n_samples[done] = k
+                    finished |= done
+                    waiting &= ~done
+                    if not np.count_nonzero(waiting) and n_arrived == n:
+                        break
+    rec_v[k] = v
+    t_all = np.asarray(t_out)
+    accel = (rec_v[1:k + 1] - rec_v[:k]) / dt
+    out = []
+    for p in range(n):
+        m = int(n_samples[p])
+        out.append({"t": t_all[:m].copy(), "s": rec_s[:m, p].copy(), "v": rec_v[:m, p].copy(),
+                    "accel": accel[:m, p].copy(),
+                    "step": (rec_g[:m, p] - s_off[p]).astype(int)})
+    return out
+
+
+def _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
+                     stop_every_s) -> list[dict]:
+    if len(steps_list) != len(step_speed_list):
+        raise ValueError(f"{len(steps_list)} paths but {len(step_speed_list)} speed arrays")
+    edges = [np.r_[0.0, np.cumsum(st.horiz_m)] for st in steps_list]
+    return _drive_kinematics(edges, step_speed_list, [st.cos_t for st in steps_list],
+                             accel_max_mps2, dt_s, duty_cycle, stop_every_s)
+
+
+def _yaw_rate(steps, kin: dict, dt_s: float) -> np.ndarray:
+    heading = step_headings_rad(steps)[kin["step"]]
+    yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0),
+                             max(1, round(TURN_SPREAD_S / dt_s)), dt_s)
+    return yaw
+
+
+def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, duty_cycle: float,
+                wind_xy_mps=(0.0, 0.0), sensor_rate_Hz: float = 0.0, dt_s: float = SAMPLE_DT_S,
+                stop_every_s: float = STOP_EVERY_S) -> list[tuple[dict, MotionState]]:
+    """``drive_path`` of many independent paths at once: for each, the same samples and
+    MotionState as ``drive_path`` gives it (parameters as there, ``steps_list`` and
+    ``step_speed_list`` one entry per path).
+
+    The kinematics of all paths advance together in one numpy loop over time steps (the
+    scalar ``Driver`` costs a Python iteration per sample and path), with the ``Driver``'s
+    arithmetic in the same order, so the samples are those of ``drive_path``.
+    """
+    kins = _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
+                            stop_every_s)
+    return [(kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), wind_xy_mps,
+                              steps.crr[kin["step"]], sensor_rate_Hz))
+            for steps, kin in zip(steps_list, kins)]
+
+
+def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max_mps2: float,
+                                   duty_cycle: float, wind_xy_mps=(0.0, 0.0),
+                                   sensor_rate_Hz: float = 0.0, dt_s: float = SAMPLE_DT_S,
+                                   stop_every_s: float = STOP_EVERY_S
+                                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Profile energy [J], shape (n,), and its gradient d/d theta, shape (n, k), of many paths:
+    per path ``profile_energy(...).total_J`` and ``profile_gradient(...)`` (parameters as
+    ``drive_paths``), from one drive of all paths and one evaluation of the model's power and
+    Jacobian over all their samples (the model's terms are per sample)."""
+    k = len(model.theta)
+    n = len(steps_list)
+    if n == 0:
+        return np.zeros(0), np.zeros((0, k))
+    kins = _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
+                            stop_every_s)
+    counts = np.array([kin["t"].size for kin in kins], dtype=np.intp)
+    bounds = np.r_[0, np.cumsum(counts)]
+    step_off = np.r_[0, np.cumsum([st.horiz_m.size for st in steps_list])[:-1]]
+    j = np.concatenate([kin["step"] + off for kin, off in zip(kins, step_off)])
+
+    def cat(name):
+        return np.concatenate([np.asarray(getattr(st, name), float) for st in steps_list])
+
+    yaw = np.concatenate([_yaw_rate(st, kin, dt_s) for st, kin in zip(steps_list, kins)])
+    wind = np.broadcast_to(np.asarray(wind_xy_mps, float), (j.size, 2))
+    state = MotionState(
+        speed_mps=np.concatenate([kin["v"] for kin in kins]), cos_t=cat("cos_t")[j],
+        sin_t=cat("sin_t")[j], dir_x=cat("dir_x")[j], dir_y=cat("dir_y")[j],
+        wind_x_mps=wind[:, 0], wind_y_mps=wind[:, 1], crr=cat("crr")[j],
+        accel_mps2=np.concatenate([kin["accel"] for kin in kins]), yaw_rate_radps=yaw,
+        sensor_rate_Hz=np.full(j.size, float(sensor_rate_Hz)),
+        surface_code=np.concatenate([st.surface_code for st in steps_list])[j])
+    power = np.broadcast_to(np.asarray(model.power_W(state), float), j.shape)
+    jac = np.broadcast_to(np.asarray(model.power_jacobian(state), float), (j.size, k))
+    energy, gradient = np.empty(n), np.empty((n, k))
+    for p in range(n):  # the reductions of profile_energy / profile_gradient, path by path
+        lo, hi = bounds[p], bounds[p + 1]
+        energy[p] = np.cumsum(power[lo:hi])[-1] * dt_s
+        gradient[p] = jac[lo:hi].sum(axis=0) * dt_s
+    return energy, gradient
