@@ -619,13 +619,19 @@ def mission_figure(result: dict, path) -> Path:
     markers = {"session": "o", "open_loop": "^", "lawnmower": "s", "oracle": "D"}
     colours = {"all": "k", "within": "tab:blue", "beyond": "tab:red"}
     rows = [r for r in result["rows"]] + [r for r in result["by_family"]]
+    shares = [0.0]
     for r in rows:
         if not r["missions"] or r["coverage_over_oracle"] is None:
             continue
         share = 100.0 * r["strandings"] / r["missions"]
+        shares.append(share)
+        big = r["family"] == "all"
         ax.scatter(share, 100.0 * r["coverage_over_oracle"], marker=markers[r["method"]],
-                   s=80 if r["family"] == "all" else 45, color=colours[r["family"]],
-                   edgecolor="k", linewidth=0.5, zorder=3)
+                   s=90 if big else 45, color=colours[r["family"]], edgecolor="k",
+                   linewidth=0.5, zorder=4 if big else 3, alpha=1.0 if big else 0.85)
+        if big:
+            ax.annotate(SHORT_LABELS[r["method"]], (share, 100.0 * r["coverage_over_oracle"]),
+                        textcoords="offset points", xytext=(9, -3), fontsize=8)
     ax.axhline(100 * TARGETS["session_over_oracle"], color="grey", ls="--", lw=1)
     ax.annotate("target for (a): 85 % of the oracle", (0.0, 100 * TARGETS["session_over_oracle"]),
                 textcoords="offset points", xytext=(4, 4), fontsize=8, color="grey")
@@ -635,7 +641,7 @@ def mission_figure(result: dict, path) -> Path:
         ax.scatter([], [], marker="o", color=c, label=f"truths: {f}")
     ax.set_xlabel("missions stranded [%]")
     ax.set_ylabel("median coverage / oracle's median [%]")
-    ax.set_xlim(left=-2)
+    ax.set_xlim(-0.04 * max(shares) - 0.2, 1.25 * max(shares) + 0.5)
     ax.set_title(f"bench mission: {result['missions']} missions, reserve confidence "
                  f"{result['spec']['confidence']:g}"
                  + ("" if result["complete"] else " (partial)"))
