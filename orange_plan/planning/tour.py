@@ -47,7 +47,7 @@ from orange_plan.planning.coverage import (
     coverage_grid,
     footprint,
 )
-from orange_plan.planning.paths import evaluate_path
+from orange_plan.planning.paths import clean_polyline, evaluate_path
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import (
     Reachability,
@@ -752,14 +752,31 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
     field, ex = setup.to_home, setup.reach.exact
     k = len(ex.model.theta)
     energy, grad = np.zeros(len(ids)), np.zeros((len(ids), k))
+    rows, paths = [], []
     for n, v in enumerate(np.asarray(ids, int)):
         if v == setup.roadmap.home_index:
             continue
         if not np.isfinite(field.energy_J[v]):
             raise PlanningError(f"walk vertex {n} at {tuple(np.round(setup.roadmap_xy_m[v], 2))}"
                                 " m has no roadmap return home")
-        back = drive(ex, setup.roadmap_xy_m[field.path(v)], ex.speed_mps)
-        energy[n], grad[n] = back.energy_J[-1], back.gradient[-1]
+        rows.append(n)
+        paths.append(clean_polyline(setup.roadmap_xy_m[field.path(v)]))
+    if not rows:
+        return Driven(energy, np.zeros(len(ids)), grad)
+    if ex.accel_max_mps2 is None:
+        for n, xy in zip(rows, paths):
+            back = drive(ex, xy, ex.speed_mps)
+            energy[n], grad[n] = back.energy_J[-1], back.gradient[-1]
+        return Driven(energy, np.zeros(len(ids)), grad)
+    # All returns driven together (one numpy loop over time): the same samples as driving
+    # each alone, at a fraction of the cost of hundreds of scalar drives.
+    from orange_plan.physics.profile import profile_energies_and_gradients
+
+    steps = [subdivide(ex.world, xy[:-1], xy[1:]) for xy in paths]
+    speeds = [st.per_step(np.full(st.n_segments, ex.speed_mps)) for st in steps]
+    e, g = profile_energies_and_gradients(ex.model, steps, speeds, ex.accel_max_mps2,
+                                          ex.duty_cycle, ex.world.wind_xy_mps, ex.sensor_rate_Hz)
+    energy[rows], grad[rows] = e, g
     return Driven(energy, np.zeros(len(ids)), grad)
 
 
