@@ -176,6 +176,36 @@ def load_planner(spec: str):
     return fn
 
 
+@bench_app.command("service")
+@handles_errors
+def bench_service_cmd(
+    seconds: Annotated[float, typer.Option(help="Timed load per repeat \\[s].")] = 20.0,
+    repeats: Annotated[int, typer.Option(help="Repeats (medians reported).")] = 3,
+    robots: Annotated[int, typer.Option(help="Missions posting telemetry at once.")] = 20,
+    batch: Annotated[int, typer.Option(help="Samples per telemetry batch.")] = 50,
+    rate: Annotated[float, typer.Option(help="Samples/s offered by all robots together.")]
+        = 2000.0,
+    vertices: Annotated[int, typer.Option(help="Roadmap vertices of each mission.")] = 300,
+    as_json: JsonOpt = False,
+) -> None:
+    """Telemetry throughput and POST latency of one `orange-plan serve` (a subprocess on
+    127.0.0.1, a temporary database) under a paced fleet of robots (issue #10 targets)."""
+    from orange_plan.bench.service_load import run_service_bench, service_table
+
+    for name, value, low in (("--seconds", seconds, 1.0), ("--repeats", repeats, 1),
+                             ("--robots", robots, 1), ("--batch", batch, 1),
+                             ("--rate", rate, 1.0), ("--vertices", vertices, 50)):
+        if not value >= low:
+            raise InputError(f"{name} = {value} must be >= {low}")
+    with stages(wanted(as_json)) as step:
+        result = run_service_bench(seconds=seconds, repeats=repeats, robots=robots,
+                                   batch=batch, rate=rate, n_vertices=vertices, step=step)
+    if as_json:
+        print_json(result.to_dict())
+        return
+    out.print(service_table(result))
+
+
 @bench_app.command("mission")
 @handles_errors
 def bench_mission_cmd(
