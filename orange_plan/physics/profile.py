@@ -276,8 +276,6 @@ def _drive_kinematics(edges_list, speed_list, cos_list, accel_max: float, dt: fl
       ``Driver`` does.
     """
     n = len(edges_list)
-    if n == 0:
-        return []
     n_sub = np.array([len(v) for v in speed_list], dtype=np.intp)
     s_off = np.r_[0, np.cumsum(n_sub)[:-1]].astype(np.intp)
     edges = [np.asarray(e, float) for e in edges_list]
@@ -395,18 +393,22 @@ def _drive_kinematics(edges_list, speed_list, cos_list, accel_max: float, dt: fl
                         break
     rec_v[k] = v
     t_all = np.asarray(t_out)
-    accel = (rec_v[1:k + 1] - rec_v[:k]) / dt
-    out = []
-    for p in range(n):
-        m = int(n_samples[p])
-        out.append({"t": t_all[:m].copy(), "s": rec_s[:m, p].copy(), "v": rec_v[:m, p].copy(),
-                    "accel": accel[:m, p].copy(),
-                    "step": (rec_g[:m, p] - s_off[p]).astype(int)})
-    return out
+    accel = ((rec_v[1:k + 1] - rec_v[:k]) / dt).T.copy()
+    # path-major (n, k): each path's samples contiguous, its first n_samples[p] valid
+    return (np.asarray(t_out), rec_s[:k].T.copy(), rec_v[:k].T.copy(), accel,
+            (rec_g[:k] - s_off).T.astype(int), n_samples)
+
+
+def _split_kinematics(records) -> list[dict]:
+    """``_drive_kinematics``' records as one ``Driver.run`` dict per path."""
+    t_all, s_rec, v_rec, accel, j_rec, n_samples = records
+    return [{"t": t_all[:m].copy(), "s": s_rec[p, :m].copy(), "v": v_rec[p, :m].copy(),
+             "accel": accel[p, :m].copy(), "step": j_rec[p, :m].copy()}
+            for p, m in enumerate(n_samples.tolist())]
 
 
 def _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
-                     stop_every_s) -> list[dict]:
+                     stop_every_s) -> tuple:
     if len(steps_list) != len(step_speed_list):
         raise ValueError(f"{len(steps_list)} paths but {len(step_speed_list)} speed arrays")
     edges = [np.r_[0.0, np.cumsum(st.horiz_m)] for st in steps_list]
@@ -432,8 +434,10 @@ def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, duty_cycle: 
     scalar ``Driver`` costs a Python iteration per sample and path), with the ``Driver``'s
     arithmetic in the same order, so the samples are those of ``drive_path``.
     """
-    kins = _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
-                            stop_every_s)
+    if not len(steps_list) and not len(step_speed_list):
+        return []
+    kins = _split_kinematics(_path_kinematics(steps_list, step_speed_list, accel_max_mps2,
+                                              duty_cycle, dt_s, stop_every_s))
     return [(kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), wind_xy_mps,
                               steps.crr[kin["step"]], sensor_rate_Hz))
             for steps, kin in zip(steps_list, kins)]
@@ -450,25 +454,28 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     Jacobian over all their samples (the model's terms are per sample)."""
     k = len(model.theta)
     n = len(steps_list)
-    if n == 0:
+    if n == 0 and not len(step_speed_list):
         return np.zeros(0), np.zeros((0, k))
-    kins = _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
-                            stop_every_s)
-    counts = np.array([kin["t"].size for kin in kins], dtype=np.intp)
-    bounds = np.r_[0, np.cumsum(counts)]
+    t_all, s_rec, v_rec, accel, j_rec, n_samples = _path_kinematics(
+        steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s, stop_every_s)
+    valid = np.arange(t_all.size) < n_samples[:, None]  # path-major, as the records
+    bounds = np.r_[0, np.cumsum(n_samples)]
     step_off = np.r_[0, np.cumsum([st.horiz_m.size for st in steps_list])[:-1]]
-    j = np.concatenate([kin["step"] + off for kin, off in zip(kins, step_off)])
+    j = j_rec[valid] + np.repeat(step_off, n_samples)  # into the concatenated sub-steps
 
     def cat(name):
         return np.concatenate([np.asarray(getattr(st, name), float) for st in steps_list])
 
-    yaw = np.concatenate([_yaw_rate(st, kin, dt_s) for st, kin in zip(steps_list, kins)])
+    heading = np.concatenate([step_headings_rad(st) for st in steps_list])[j]
+    k_spread = max(1, round(TURN_SPREAD_S / dt_s))
+    yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
+                                          dt_s)[0] for lo, hi in zip(bounds[:-1], bounds[1:])])
     wind = np.broadcast_to(np.asarray(wind_xy_mps, float), (j.size, 2))
     state = MotionState(
-        speed_mps=np.concatenate([kin["v"] for kin in kins]), cos_t=cat("cos_t")[j],
+        speed_mps=v_rec[valid], cos_t=cat("cos_t")[j],
         sin_t=cat("sin_t")[j], dir_x=cat("dir_x")[j], dir_y=cat("dir_y")[j],
         wind_x_mps=wind[:, 0], wind_y_mps=wind[:, 1], crr=cat("crr")[j],
-        accel_mps2=np.concatenate([kin["accel"] for kin in kins]), yaw_rate_radps=yaw,
+        accel_mps2=accel[valid], yaw_rate_radps=yaw,
         sensor_rate_Hz=np.full(j.size, float(sensor_rate_Hz)),
         surface_code=np.concatenate([st.surface_code for st in steps_list])[j])
     power = np.broadcast_to(np.asarray(model.power_W(state), float), j.shape)
