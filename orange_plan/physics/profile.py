@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_right
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -392,7 +393,6 @@ def _drive_kinematics(edges_list, speed_list, cos_list, accel_max: float, dt: fl
                     if not np.count_nonzero(waiting) and n_arrived == n:
                         break
     rec_v[k] = v
-    t_all = np.asarray(t_out)
     accel = ((rec_v[1:k + 1] - rec_v[:k]) / dt).T.copy()
     # path-major (n, k): each path's samples contiguous, its first n_samples[p] valid
     return (np.asarray(t_out), rec_s[:k].T.copy(), rec_v[:k].T.copy(), accel,
@@ -456,7 +456,7 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     n = len(steps_list)
     if n == 0 and not len(step_speed_list):
         return np.zeros(0), np.zeros((0, k))
-    t_all, s_rec, v_rec, accel, j_rec, n_samples = _path_kinematics(
+    t_all, _, v_rec, accel, j_rec, n_samples = _path_kinematics(
         steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s, stop_every_s)
     valid = np.arange(t_all.size) < n_samples[:, None]  # path-major, as the records
     bounds = np.r_[0, np.cumsum(n_samples)]
@@ -469,7 +469,7 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     heading = np.concatenate([step_headings_rad(st) for st in steps_list])[j]
     k_spread = max(1, round(TURN_SPREAD_S / dt_s))
     yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
-                                          dt_s)[0] for lo, hi in zip(bounds[:-1], bounds[1:])])
+                                          dt_s)[0] for lo, hi in pairwise(bounds)])
     wind = np.broadcast_to(np.asarray(wind_xy_mps, float), (j.size, 2))
     state = MotionState(
         speed_mps=v_rec[valid], cos_t=cat("cos_t")[j],
