@@ -136,7 +136,9 @@ def random_scenario(folder, seed: int, width_m: float = 300.0, height_m: float =
     wind = (0.0, 0.0)
     if rng.uniform() < 0.5:
         wind = (float(np.round(rng.uniform(1.0, 5.0), 1)), float(np.round(rng.uniform(0, 360))))
-    free = width_m * height_m - shapely.union_all(obstacles).area if obstacles else width_m * height_m
+    free = width_m * height_m
+    if obstacles:
+        free -= shapely.union_all(obstacles).area
     distance_m = coverage_share * free / (2 * sensor_radius_m)
     wh = float(np.round(distance_m * 26.0 / 3600 / 0.97, 1))
     return write_world(folder, f"random_{seed}", width_m, height_m, obstacles, home, hills,
