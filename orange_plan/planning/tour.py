@@ -759,8 +759,10 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
         if not np.isfinite(field.energy_J[v]):
             raise PlanningError(f"walk vertex {n} at {tuple(np.round(setup.roadmap_xy_m[v], 2))}"
                                 " m has no roadmap return home")
-        rows.append(n)
-        paths.append(clean_polyline(setup.roadmap_xy_m[field.path(v)]))
+        xy = clean_polyline(setup.roadmap_xy_m[field.path(v)])
+        if np.hypot(*(xy[-1] - xy[0])) > 1e-9 or len(xy) > 2:  # a vertex on home costs 0
+            rows.append(n)
+            paths.append(xy)
     if not rows:
         return Driven(energy, np.zeros(len(ids)), grad)
     if ex.accel_max_mps2 is None:
