@@ -214,6 +214,8 @@ class MissionSession:
         self._plan_model = self.online_model
         self._plan_world = self.world_now
         self._progress = 0
+        for b in getattr(self, "_window", ()):
+            b[5] = None  # a new plan model: predict again
         self._map_changed = False
         self._home_reach = None
 
@@ -302,7 +304,8 @@ class MissionSession:
     def _remember(self, duration_s, distance_m, measured_J, state, dt) -> None:
         """Keep the last ``window_s`` of batches: what was measured and the motion, so any
         model's prediction for the same motion can be made."""
-        self._window.append((duration_s, distance_m, measured_J, state, dt))
+        # the last item: this batch's energy predicted by the plan's model (filled lazily)
+        self._window.append([duration_s, distance_m, measured_J, state, dt, None])
         span = sum(b[0] for b in self._window)
         while len(self._window) > 1 and span - self._window[0][0] >= self.window_s:
             span -= self._window.popleft()[0]
@@ -379,9 +382,11 @@ class MissionSession:
         measured = sum(b[2] for b in self._window) / dist
         # the plan's prediction: its model in its world (its wind), on the motion driven
         wx, wy = self._plan_world.wind_xy_mps
-        predicted = sum(float(np.sum(np.asarray(self._plan_model.power_W(
-            b[3].with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b[4]))
-            for b in self._window) / dist
+        for b in self._window:  # each batch once per plan (a window holds up to ~150)
+            if b[5] is None:
+                b[5] = float(np.sum(np.asarray(self._plan_model.power_W(
+                    b[3].with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b[4]))
+        predicted = sum(b[5] for b in self._window) / dist
         sd = self._estimator.estimate().energy_per_m_sd_J
         if not (math.isfinite(sd) and sd > 0):
             return None

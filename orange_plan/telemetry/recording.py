@@ -328,6 +328,9 @@ def _to_numbers(frame: pd.DataFrame, source: str) -> pd.DataFrame:
         if pd.api.types.is_bool_dtype(raw):
             raise RecordingError(f"{source}: column '{col}' holds true/false values, not numbers")
         numbers = pd.to_numeric(raw, errors="coerce")
+        if pd.api.types.is_numeric_dtype(raw):  # numbers already: no text to report
+            frame[col] = numbers.astype(float)
+            continue
         text = numbers.isna() & raw.notna() & (raw.astype(str).str.strip() != "")
         if text.any():
             row = int(np.flatnonzero(text.to_numpy())[0])
