@@ -134,14 +134,15 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
 
 def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=None,
                 optimise_speed: bool = True, bitstar_s: float = BITSTAR_S,
-                bitstar_legs: int = BITSTAR_LEGS, seed: int = 0) -> Plan:
+                bitstar_legs: int = BITSTAR_LEGS, seed: int = 0, probe=None) -> Plan:
     """The tour search on a prepared setup: orienteering under the budgets, BIT* on the
     costliest legs, speeds, and the exact per-vertex check, the budget lowered by any deficit
     until every vertex keeps its margin (see the module docstring)."""
     step = step or (lambda text: None)
     reach = setup.reach
     remaining = reach.energy_available_J - reach.energy_used_J
-    reserve_guess, time_factor = _probe(setup)
+    reserve_share, time_factor = _probe(setup) if probe is None else probe
+    reserve_guess = reserve_share * remaining
     budget = remaining - reserve_guess
     time_left = _time_left_s(ctx, start)
     budget_s = time_left / time_factor
@@ -226,10 +227,12 @@ class TourPlanner:
         if self.setup is None:
             self.setup = tour_setup(ctx, start, self.n_vertices, self.seed,
                                     self.max_candidates, step)
+            self.probe = _probe(self.setup)
             setup = self.setup
-        else:
+        else:  # the first plan's budget guesses serve: the exact check corrects them
             setup = warm_setup(self.setup, ctx, start)
-        return search_tour(ctx, setup, start, t0=t0, step=step, **self.search)
+        return search_tour(ctx, setup, start, t0=t0, step=step, probe=self.probe,
+                           **self.search)
 
 
 def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
@@ -512,8 +515,8 @@ def _leg_times(ctx, speed_mps: float, xy: np.ndarray, pred: np.ndarray) -> np.nd
 
 def _probe(setup: TourSetup) -> tuple[float, float]:
     """First guesses for the budgets, from the costliest single-candidate round trip driven
-    exactly: the final reserve [J] (that trip's reserve per joule, scaled to the whole energy
-    left) and the factor by which the driven profile (ramps, stops) lengthens the cruise-speed
+    exactly: the final reserve as a share of the energy left [-] (that trip's reserve per
+    joule, scaled to the whole energy left) and the factor by which the driven profile (ramps, stops) lengthens the cruise-speed
     mission time the search counts [-]. The budget loop corrects both against the exact walk.
     """
     reach = setup.reach
@@ -529,11 +532,11 @@ def _probe(setup: TourSetup) -> tuple[float, float]:
     time_factor = max(1.0, float(walk.time_s[-1]) / cruise) if cruise > 0 else 1.0
     left = reach.energy_available_J - reach.energy_used_J
     if res.kind != "confidence":
-        return float(reserve_J(res, reach.energy_available_J, 0.0)), time_factor
+        return float(reserve_J(res, reach.energy_available_J, 0.0)) / max(left, 1e-9), time_factor
     var = _variance(reach, walk.energy_J[-1], walk.gradient[-1])
     ratio = float(reserve_J(res, reach.energy_available_J, var)) / max(walk.energy_J[-1], 1e-9)
     # reserve ~ ratio * E_tour and E_tour + reserve <= left
-    return left * ratio / (1.0 + ratio), time_factor
+    return ratio / (1.0 + ratio), time_factor
 
 
 # --- the walk: polyline, speeds, re-evaluation ---------------------------------------------
