@@ -44,7 +44,7 @@ def standin_planner(ctx, start=None, *, cost="physics", n_vertices=300, seed=0, 
     reach = prepare_reach(ctx, n_vertices=n_vertices, seed=seed)
     lawn = plan_lawnmower(ctx, reach, angle_deg=0.0)
     home = HomePaths(reach)
-    energy, t = cumulative_energy_time(ctx, reach.fast, lawn.xy_m)
+    energy, _t = cumulative_energy_time(ctx, reach.fast, lawn.xy_m)
     usable = ctx.scenario.battery.usable_J
     if cost == "distance":
         energy = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lawn.xy_m, axis=0).T))] * home.e_per_m
@@ -80,7 +80,7 @@ def test_quick_run_has_every_column_and_the_same_truths(tiny):
     for row in rows:
         assert set(COLUMNS) <= set(row)
         assert row["flights"] == 2 and row["error"] is None
-        assert 0 < row["coverage_m2"] and 0 < row["coverage_of_bound"] <= 1.0 + 1e-9
+        assert row["coverage_m2"] > 0 and 0 < row["coverage_of_bound"] <= 1.0 + 1e-9
         assert 0 <= row["strandings"] <= 2
     assert rows[0]["ratio_vs_lawnmower"] is None and rows[2]["ratio_vs_lawnmower"] > 0
     assert [f.seed for f in result.results[0].flights] == [0, 1]
@@ -207,3 +207,31 @@ def test_physical_bound_keeps_nothing_back(tiny, tmp_path):
     big = load_context(write_world(tmp_path, width_m=40, height_m=30, rated_energy_Wh=50.0,
                                    name="big"))
     assert coverage_bound_m2(big) == pytest.approx(big.world.map.free_space.area)
+
+
+def test_at_confidence_replaces_the_reserve_rule_for_the_planners():
+    from dataclasses import dataclass
+
+    from orange_plan.bench.plan import at_confidence
+    from orange_plan.scenario import Mission, Reserve
+
+    seen = []
+
+    def planner(ctx, **kwargs):
+        seen.append(ctx.scenario.mission.reserve)
+        return None
+
+    mission = Mission(duty_cycle=1.0, sensor_radius_m=1.0, reserve=Reserve("fraction", 0.1))
+
+    @dataclass(frozen=True)
+    class Sc:
+        mission: Mission
+
+    @dataclass(frozen=True)
+    class Ctx:
+        scenario: Sc
+
+    ctx = Ctx(Sc(mission))
+    at_confidence(planner, 0.95)(ctx, cost="physics")
+    at_confidence(planner, None)(ctx, cost="physics")
+    assert seen == [Reserve("confidence", 0.95), Reserve("fraction", 0.1)]

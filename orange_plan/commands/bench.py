@@ -112,6 +112,9 @@ def bench_plan_cmd(
     large: Annotated[bool, typer.Option(
         help="Time (c) on the generated 2 km x 2 km map (300 obstacles, DEM).")] = True,
     png: Annotated[Path | None, typer.Option(help="PNG: coverage vs strandings per method.")] = None,
+    confidence: Annotated[float, typer.Option(
+        help="Reserve of the planners (b) and (c): confidence = p (0: each scenario's own "
+             "reserve rule).")] = 0.95,
     out_file: Annotated[Path | None, typer.Option(
         "--out", help="Write the JSON result here after each scenario (partial) and at the end.")] = None,
     planner: Annotated[str, typer.Option(
@@ -126,7 +129,13 @@ def bench_plan_cmd(
     import tempfile
 
     from orange_plan.atomic import atomic_path
-    from orange_plan.bench.plan import plan_figure, plan_table, run_plan_bench, scenario_specs
+    from orange_plan.bench.plan import (
+        at_confidence,
+        plan_figure,
+        plan_table,
+        run_plan_bench,
+        scenario_specs,
+    )
 
     seeds = seeds if seeds is not None else (2 if quick else 20)
     if png is not None and png.suffix.lower() != ".png":
@@ -136,8 +145,12 @@ def bench_plan_cmd(
     names = [s.strip() for s in scenarios.split(",") if s.strip()]
     if quick and scenarios == DEFAULT_PLAN_SCENARIOS:
         names = ["random"]
-    plan_fn = functools.partial(load_planner(planner), n_vertices=800 if quick else vertices,
-                                seed=0)
+    if not 0 <= confidence < 1:
+        raise InputError(f"--confidence = {confidence:g} must be in (0, 1), or 0 for each "
+                         "scenario's own reserve")
+    plan_fn = at_confidence(functools.partial(load_planner(planner),
+                                              n_vertices=800 if quick else vertices, seed=0),
+                            confidence or None)
 
     def save(result) -> None:
         if out_file is not None:
