@@ -47,3 +47,8 @@ def fmin(x, y):
 def exp(x):
     """Exponential for numpy or CasADi."""
     return _ca().exp(x) if is_symbolic(x) else np.exp(x)
+
+
+def wrap_pi(angle_rad):
+    """Angles wrapped into [-pi, pi) [rad]: the shorter way round (numpy or float)."""
+    return (angle_rad + np.pi) % (2 * np.pi) - np.pi

@@ -16,6 +16,8 @@ import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.physics.model import EnergyModel, SegmentEnergy
+from orange_plan.physics.ops import wrap_pi
+from orange_plan.physics.profile import profile_energy
 from orange_plan.physics.state import MotionState
 
 MAX_STEP_M = 0.5
@@ -147,11 +149,6 @@ def heading_changes_rad(path_xy) -> np.ndarray:
     return np.abs(wrap_pi(np.diff(heading)))
 
 
-def wrap_pi(angle_rad):
-    """Angles wrapped into [-pi, pi) [rad]: the shorter way round."""
-    return (angle_rad + np.pi) % (2 * np.pi) - np.pi
-
-
 def segments_energy(
     model: EnergyModel,
     world,
@@ -264,8 +261,6 @@ def path_energy(
         cumulative = np.r_[0.0, np.cumsum(seg.total_J)]
         time = np.r_[0.0, np.cumsum(seg.mission_time_s)]
         return PathEnergy(seg, cumulative, time)
-    from orange_plan.physics.profile import profile_energy  # profile imports this module
-
     drive = profile_energy(model, steps, steps.per_step(speed_mps), accel_max_mps2, duty_cycle,
                            world.wind_xy_mps, sensor_rate_Hz)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p, axis=0).T))]

@@ -25,7 +25,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from orange_plan.physics.pathcost import wrap_pi
+from orange_plan.physics.ops import wrap_pi
 from orange_plan.physics.state import MotionState
 
 STOP_EVERY_S = 60.0
