@@ -537,7 +537,7 @@ def plan_figure(result: PlanBenchResult, path) -> Path:
 
     from orange_plan.atomic import save_figure
 
-    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    fig, ax = plt.subplots(figsize=(7.5, 5.4))
     markers = {"lawnmower": "s", "distance": "^", "physics": "o"}
     scen = list(dict.fromkeys(r.scenario for r in result.results))
     colours = plt.get_cmap("tab10")
@@ -555,6 +555,9 @@ def plan_figure(result: PlanBenchResult, path) -> Path:
     ax.set_ylabel("flights stranded [%]")
     ax.set_title(f"bench plan: {result.seeds} truths per scenario")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", ncol=2)
+    # Below the axes: inside, it hid the markers of the upper left corner.
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=4,
+              frameon=False)
+    ax.set_ylim(bottom=-1)
     fig.tight_layout()
     return save_figure(fig, path)
