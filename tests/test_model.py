@@ -193,7 +193,7 @@ def test_bad_model_inputs():
                     {"ancillary_W": 1.0, "rolling_kg": 1.0}, np.eye(1))
     with pytest.raises(InputError, match=r"omega = 0 must be in \(0, 1\]"):
         EnergyModel([TERMS["rolling"]], {"rolling_kg": 1.0}, omega=0)
-    with pytest.raises(InputError, match="discrepancy_rel_sd = -0.1 must be >= 0"):
+    with pytest.raises(InputError, match=r"discrepancy_rel_sd = -0\.1 must be >= 0"):
         EnergyModel([TERMS["rolling"]], {"rolling_kg": 1.0}, discrepancy_rel_sd=-0.1)
     with pytest.raises(InputError, match="no coefficient named 'crr_kg'"):
         EnergyModel([TERMS["rolling"]], {"rolling_kg": 1.0}).coefficient("crr_kg")

@@ -243,7 +243,7 @@ def decide_return(ctx, frame, lawn_xy, home: HomePaths, rule: ReturnRule) -> Ret
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     used = np.cumsum(power) * dt
     avg = rule.average_power_W(t, power, cruise_power_W(ctx, home.speed_mps))
-    every = max(1, int(round(1.0 / (RULE_RATE_HZ * dt))))
+    every = max(1, round(1.0 / (RULE_RATE_HZ * dt)))
     idx = np.arange(0, t.size, every)
     xy = frame[["x_m", "y_m"]].to_numpy(float)
     time_home = home.time_s(xy[idx])

@@ -358,10 +358,7 @@ def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
         pieces = boustrophedon(sweep_lanes(ctx.world, grid, r, angle))
         if not pieces:
             return (0.0, 0.0)
-        if joined:
-            xy = join_pieces(home, pieces, detours)[0]
-        else:
-            xy = straight_route(home, pieces)[0]
+        xy = (join_pieces(home, pieces, detours) if joined else straight_route(home, pieces))[0]
         covered, energy = _covered_before_return(ctx, cost, xy, free, budget, e_per_m)
         return (round(covered, 1), -energy)
 
