@@ -200,10 +200,10 @@ class HomePaths:
 
 def _flat_energy_per_m(cost) -> float:
     """Energy per metre at the cruise speed on flat default ground [J/m] (joins' weight)."""
-    from orange_plan.physics.range import flat_state
+    from orange_plan.physics.range import flat_energy_per_m_J
 
-    state = flat_state(cost.speed_mps, cost.world.default_crr, cost.sensor_rate_Hz)
-    return float(cost.model.segment_energy(state, 1.0, cost.duty_cycle).total_J)
+    return float(flat_energy_per_m_J(cost.model, cost.speed_mps, cost.world.default_crr,
+                                     cost.sensor_rate_Hz, cost.duty_cycle))
 
 
 def cruise_power_W(ctx, speed_mps: float) -> float:

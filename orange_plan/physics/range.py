@@ -97,6 +97,22 @@ def flat_state(speed_mps, crr: float, sensor_rate_Hz: float) -> MotionState:
     return MotionState(speed_mps=speed_mps, crr=crr, sensor_rate_Hz=sensor_rate_Hz)
 
 
+def flat_energy_per_m_J(model: EnergyModel, speed_mps, crr: float, sensor_rate_Hz: float,
+                        duty_cycle: float):
+    """Battery energy per metre on level, windless ground of rolling coefficient ``crr``
+    (Eq. 6's denominator) [J/m]; ``speed_mps`` of any shape."""
+    state = flat_state(speed_mps, crr, sensor_rate_Hz)
+    return model.segment_energy(state, 1.0, duty_cycle).total_J
+
+
+def farthest_speed_mps(cost_per_m, energy_J: float, time_s: float, duty_cycle: float,
+                       v_min_mps: float, v_max_mps: float) -> float:
+    """Speed maximising the distance ``min(energy_J / e(v), time_s v D)`` on [v_min, v_max]
+    (energy or time runs out first) [m/s]; ``cost_per_m`` is e(v) [J/m]."""
+    return best_speed(lambda v: -min(energy_J / cost_per_m(v), time_s * v * duty_cycle),
+                      v_min_mps, v_max_mps)
+
+
 def within_time_limit(result: RangeResult, cost_per_m, scenario,
                       time_limit_s: float | None) -> RangeResult:
     """``result`` checked against ``time_limit_s`` (``mission.check_time_limit``); when its
@@ -113,11 +129,9 @@ def within_time_limit(result: RangeResult, cost_per_m, scenario,
         return result
     energy, duty = scenario.battery.usable_J, scenario.mission.duty_cycle
 
-    def distance_m(v):
-        return min(energy / cost_per_m(v), time_limit_s * v * duty)
-
-    v = best_speed(lambda v: -distance_m(v), scenario.robot.v_min_mps, scenario.robot.v_max_mps)
-    d = distance_m(v)
+    v = farthest_speed_mps(cost_per_m, energy, time_limit_s, duty, scenario.robot.v_min_mps,
+                           scenario.robot.v_max_mps)
+    d = min(energy / cost_per_m(v), time_limit_s * v * duty)
     limited = RangeResult(d, v, cost_per_m(v), d / (v * duty), f"{result.method} within "
                           f"mission.time_limit_s")
     return replace(result, within_time_limit=False, reason=check.reason, time_limited=limited)
@@ -135,7 +149,7 @@ def simplified_range(scenario, model: EnergyModel, crr: float,
     rate = scenario.ancillary.sensor_rate_Hz
 
     def cost_per_m(v):
-        return float(model.segment_energy(flat_state(v, crr, rate), 1.0, duty).total_J)
+        return float(flat_energy_per_m_J(model, v, crr, rate, duty))
 
     v = best_speed(cost_per_m, scenario.robot.v_min_mps, scenario.robot.v_max_mps)
     cost = cost_per_m(v)

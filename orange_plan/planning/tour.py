@@ -272,12 +272,14 @@ def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
                    point_vertex=point_vertex, roadmap=roadmap, to_home=to_home)
 
 
-def _per_metre(model, ctx) -> float:
-    """Battery energy per metre of a model on flat default ground at the cruise speed [J/m]."""
-    from orange_plan.physics.range import flat_state
+def _per_metre(model, ctx, speed_mps: float | None = None) -> float:
+    """Battery energy per metre of a model on flat default ground, at the cruise speed unless
+    ``speed_mps`` is given [J/m]."""
+    from orange_plan.physics.range import flat_energy_per_m_J
 
-    state = flat_state(ctx.cruise_speed_mps, ctx.world.default_crr, ctx.sensor_rate_Hz)
-    return float(model.segment_energy(state, 1.0, ctx.duty_cycle).total_J)
+    speed = ctx.cruise_speed_mps if speed_mps is None else speed_mps
+    return float(flat_energy_per_m_J(model, speed, ctx.world.default_crr,
+                                     ctx.sensor_rate_Hz, ctx.duty_cycle))
 
 
 def distance_context(ctx):
@@ -301,19 +303,15 @@ def tour_speed_mps(ctx, start: StartState) -> float:
     the energy per metre on flat default ground: the speed maximising that on
     ``[v_opt, v_max]`` is taken (the speed optimiser later tunes each segment).
     """
-    from orange_plan.physics.range import flat_state
+    from orange_plan.physics.range import farthest_speed_mps
 
     v_opt = ctx.cruise_speed_mps
     limit = ctx.scenario.mission.time_limit_s
     if limit is None:
         return v_opt
-    sc = ctx.scenario
-    left = _motion_energy_guess(ctx, start)
-    speeds = np.linspace(v_opt, sc.robot.v_max_mps, 200)
-    state = flat_state(speeds, ctx.world.default_crr, ctx.sensor_rate_Hz)
-    per_m = np.asarray(ctx.model.segment_energy(state, 1.0, ctx.duty_cycle).total_J, float)
-    dist = np.minimum(left / per_m, speeds * ctx.duty_cycle * max(limit - start.time_s, 0.0))
-    return float(speeds[int(np.argmax(dist))])
+    return farthest_speed_mps(lambda v: _per_metre(ctx.model, ctx, v), _motion_energy_guess(
+        ctx, start), max(limit - start.time_s, 0.0), ctx.duty_cycle, v_opt,
+        ctx.scenario.robot.v_max_mps)
 
 
 def _motion_energy_guess(ctx, start: StartState) -> float:
