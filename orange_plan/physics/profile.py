@@ -191,10 +191,19 @@ class ProfileEnergy:
 
     def at_arclength(self, s_m) -> tuple[np.ndarray, np.ndarray]:
         """(energy drawn [J], time [s]) when the robot first reaches each arclength ``s_m``."""
+        return self.drawn_before(self.cumulative_J, s_m), self.t_s[self._first_sample(s_m)]
+
+    def drawn_before(self, cumulative, s_m) -> np.ndarray:
+        """A per-sample cumulative sum (energy, its gradient: leading axis = samples) as it
+        stands when the robot first reaches each arclength ``s_m``."""
+        i = self._first_sample(s_m)
+        cumulative = np.asarray(cumulative)
+        first = (i == 0).reshape(i.shape + (1,) * (cumulative.ndim - 1))
+        return np.where(first, 0.0, cumulative[np.maximum(i - 1, 0)])
+
+    def _first_sample(self, s_m) -> np.ndarray:
         i = np.searchsorted(self.s_m, np.asarray(s_m, float) - 1e-9, side="left")
-        i = np.clip(i, 0, self.t_s.size - 1)
-        before = np.where(i > 0, self.cumulative_J[np.maximum(i - 1, 0)], 0.0)
-        return before, self.t_s[i]
+        return np.clip(i, 0, self.t_s.size - 1)
 
 
 def drive_path(steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,

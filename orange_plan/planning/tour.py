@@ -713,7 +713,7 @@ def drive(cost, xy, speed_mps) -> Driven:
     """Energy, time and gradient of a polyline as ``path_energy`` / ``path_gradient`` give
     them (the driven speed profile when ``cost`` carries an acceleration limit), from one
     drive: both come from the same samples, so they cost one profile instead of two."""
-    from orange_plan.physics.profile import drive_path
+    from orange_plan.physics.profile import SAMPLE_DT_S, ProfileEnergy, drive_path
 
     xy = np.asarray(xy, float)
     speed = np.broadcast_to(np.asarray(speed_mps, float), (len(xy) - 1,))
@@ -727,19 +727,16 @@ def drive(cost, xy, speed_mps) -> Driven:
         return Driven(energy.cumulative_J, energy.cumulative_time_s, grad)
     kin, state = drive_path(steps, steps.per_step(speed), cost.accel_max_mps2, cost.duty_cycle,
                             world.wind_xy_mps, cost.sensor_rate_Hz)
-    dt = float(kin["t"][1] - kin["t"][0]) if len(kin["t"]) > 1 else 0.1
+    dt = SAMPLE_DT_S
     power = np.broadcast_to(np.asarray(model.power_W(state), float), kin["t"].shape)
-    cum_e = np.cumsum(power) * dt
+    drawn = ProfileEnergy(kin["t"], kin["s"], np.cumsum(power) * dt, dt)
     cum_g = np.cumsum(model.power_jacobian(state), axis=0) * dt
-    # energy drawn before first reaching each vertex's arclength (as ProfileEnergy.at_arclength)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
-    i = np.clip(np.searchsorted(kin["s"], vertex_s - 1e-9, side="left"), 0, len(cum_e) - 1)
-    first = i == 0
-    energy = np.where(first, 0.0, cum_e[np.maximum(i - 1, 0)])
-    grad = np.where(first[:, None], 0.0, cum_g[np.maximum(i - 1, 0)])
-    time = kin["t"][i].astype(float)
-    energy[-1], grad[-1], time[-1] = cum_e[-1], cum_g[-1], kin["t"][-1] + dt  # final wait
-    return Driven(energy, time, grad)
+    energy, time = drawn.at_arclength(vertex_s)
+    grad = drawn.drawn_before(cum_g, vertex_s)
+    # the last vertex: at rest at the end, the final duty-cycle wait included
+    energy[-1], grad[-1], time[-1] = drawn.total_J, cum_g[-1], drawn.duration_s
+    return Driven(energy, time.astype(float), grad)
 
 
 def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
