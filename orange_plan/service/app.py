@@ -155,6 +155,15 @@ def error(status_code: int, detail: str, headers: dict | None = None) -> JSONRes
     return JSONResponse({"detail": one_line(detail)}, status_code=status_code, headers=headers)
 
 
+def _one_line(status_code: int):
+    """An exception handler answering ``status_code`` with the exception's message."""
+
+    async def handler(request: Request, exc: Exception) -> JSONResponse:
+        return error(status_code, str(exc))
+
+    return handler
+
+
 # --- the app -------------------------------------------------------------------------------
 def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = None,
                token_from_env: bool = True, scenarios_dir=None, maps_dir=None,
@@ -384,22 +393,11 @@ def _handlers(app: FastAPI) -> None:
     async def http_error(request: Request, exc: StarletteHTTPException):
         return error(exc.status_code, exc.detail, getattr(exc, "headers", None))
 
-    @app.exception_handler(MissionNotFound)
-    async def not_found(request: Request, exc: MissionNotFound):
-        return error(404, str(exc))
-
-    @app.exception_handler(InputError)
-    async def bad_input(request: Request, exc: InputError):
-        return error(422, str(exc))
-
-    @app.exception_handler(MissionUnavailable)
-    async def unavailable(request: Request, exc: MissionUnavailable):
-        return error(503, str(exc))
-
-    @app.exception_handler(OrangeError)
-    async def planning_failed(request: Request, exc: OrangeError):
-        # e.g. no tour keeps the homing constraint from here: the request cannot be met
-        return error(409, str(exc))
+    # Our own errors by status; OrangeError that is not input is a request that cannot be met
+    # (e.g. no tour keeps the homing constraint from here).
+    answers = {MissionNotFound: 404, InputError: 422, MissionUnavailable: 503, OrangeError: 409}
+    for kind, code in answers.items():
+        app.add_exception_handler(kind, _one_line(code))
 
     @app.exception_handler(Exception)
     async def internal(request: Request, exc: Exception):
