@@ -435,3 +435,25 @@ def test_planning_does_not_block_other_requests(tmp_path):
     finally:
         srv.should_exit = True
         server.join(timeout=10)
+
+
+def test_an_exact_resend_of_the_last_batch_gets_its_answer_again(tmp_path):
+    """A robot whose answer was lost sends the same batch again: it was acknowledged (stored)
+    already, so it gets the same answer and is not fed twice, before and after a restart;
+    a different batch with old times is still refused."""
+    db = tmp_path / "m.sqlite"
+    batch = {"samples": samples(0.0, 10, *HOME)}
+    with client(db) as c:
+        mid = create(c)["mission_id"]
+        first = c.post(f"/missions/{mid}/telemetry", json=batch)
+        again = c.post(f"/missions/{mid}/telemetry", json=batch)
+        assert first.status_code == again.status_code == 200
+        assert again.json() == first.json()
+        assert c.get(f"/missions/{mid}").json()["samples"] == 10
+        other = c.post(f"/missions/{mid}/telemetry",
+                       json={"samples": samples(0.0, 10, *HOME, power_W=5.0)})
+        assert other.status_code == 422 and "t_s" in one_line_detail(other)
+    with client(db) as c:  # restarted: rebuilt from the database
+        again = c.post(f"/missions/{mid}/telemetry", json=batch)
+        assert again.status_code == 200 and again.json() == first.json()
+        assert c.get(f"/missions/{mid}").json()["samples"] == 10

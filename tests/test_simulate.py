@@ -193,3 +193,26 @@ def test_energy_never_negative_without_regen(ctx, rolling, wind, gust, payload, 
 def test_bad_sample_rate(ctx):
     with pytest.raises(InputError, match=r"sample_rate_Hz \(--rate-hz\) = 0 must be in \(0, 1000\]"):
         simulate(ctx, route(), sample_rate_Hz=0)
+
+
+def test_a_drive_started_mid_battery_carries_the_state_of_charge(ctx):
+    """A mission flown as several drives: the second starts where the first left the
+    battery, so its soc and its depletion count the energy already drawn."""
+    truth = Truth(capacity_factor=0.5)
+    whole = 0.5 * ctx.scenario.battery.usable_J
+    fresh = simulate(ctx, route(), truth, seed=3)
+    later = simulate(ctx, route(), truth, seed=3, energy_start_J=0.25 * whole)
+    assert later.energy_J == pytest.approx(fresh.energy_J)  # this drive's draw only
+    soc0 = 1.0 - (0.25 * whole + fresh.frame["power_W"].iloc[0] * 0.1) / whole
+    assert later.frame["soc"].iloc[0] == pytest.approx(soc0, rel=1e-3)
+    assert (later.frame["soc"] < fresh.frame["soc"] - 0.24).all()
+    empty = simulate(ctx, route(), truth, seed=3, to_depletion=True,
+                     energy_start_J=0.9 * whole)
+    full = simulate(ctx, route(), truth, seed=3, to_depletion=True)
+    assert empty.depleted and empty.energy_J == pytest.approx(0.1 * full.energy_J, rel=0.02)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
+def test_bad_start_energy_is_refused(ctx, bad):
+    with pytest.raises(InputError, match="energy_start_J"):
+        simulate(ctx, route(), energy_start_J=bad)

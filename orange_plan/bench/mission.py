@@ -27,8 +27,9 @@ map ``i mod n_maps``. Roadmaps of ``n_vertices`` vertices, BIT* refinement off.
 * ``beyond``: such a draw plus one effect the scenario does not have, in turn
   ``wind`` (a mean wind of 3-5 m/s from any direction, recorded by the robot),
   ``mass`` (a payload of +20-40 % of the robot's mass from the start),
-  ``ageing`` (usable energy x 0.80-0.90: a more aged battery; the session and the PX4 rule
-  cannot see it, only the oracle knows), ``terrain`` (rolling resistance x 1.3-1.6: softer
+  ``ageing`` (usable energy x 0.80-0.90: a more aged battery; the oracle knows it, the session
+  sees it only through the battery's state of charge in its telemetry, ``soc``, and the PX4
+  rule as implemented here, which counts energy against the configured capacity, not at all), ``terrain`` (rolling resistance x 1.3-1.6: softer
   ground, or an unmapped incline, than the map says).
 
 **Accounting** (every method): the simulator cannot start mid-battery, so a mission is flown
@@ -76,8 +77,9 @@ TARGETS = {"strandings_session": 0, "session_over_oracle": 0.85, "missions": 500
            "confidence": 0.99}
 
 FEED_COLUMNS = ("t_s", "power_W", "x_m", "y_m", "z_m", "v_mps", "yaw_rate_radps", "accel_mps2",
-                "wind_mps", "wind_from_deg")
-"""Recording columns the session is fed (what a robot's telemetry would carry)."""
+                "wind_mps", "wind_from_deg", "soc")
+"""Recording columns the session is fed (what a robot's telemetry would carry; ``soc`` is the
+battery's state of charge, which shows an aged battery)."""
 
 STUDY_CONFIDENCE = 0.99
 """The scenario's reserve for this study (``mission.reserve.confidence``)."""
@@ -262,6 +264,11 @@ class _Flown:
     returned_by_rule: bool = False
     note: str = ""
 
+    @property
+    def energy_drawn_J(self) -> float:
+        """Energy drawn by the segments so far (recorded power, as ``outcome`` counts) [J]."""
+        return float(sum(np.sum(p) for p in self.power) * self.dt)
+
     def add(self, frame, n: int | None = None) -> None:
         n = len(frame) if n is None else n
         self.xy.append(frame[["x_m", "y_m"]].to_numpy(float)[:n])
@@ -283,12 +290,13 @@ class _Flown:
                 "note": self.note}
 
 
-def _simulate(ctx, xy, speed, truth, seed, rate):
+def _simulate(ctx, xy, speed, truth, seed, rate, energy_start_J: float = 0.0):
     from orange_plan.sim.route import Route
     from orange_plan.sim.simulator import simulate
 
     return simulate(ctx, Route(np.asarray(xy, float), np.asarray(speed, float), "bench mission"),
-                    truth, seed=int(seed), sample_rate_Hz=rate)
+                    truth, seed=int(seed), sample_rate_Hz=rate,
+                    energy_start_J=max(float(energy_start_J), 0.0))
 
 
 def fly_open_loop(ctx, plan, truth, seed: int, rate: float) -> dict:
@@ -329,7 +337,9 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
     t_next, last_replan, segment, returning = 0.0, -math.inf, 0, False
     actions = []
     while True:
-        sim = _simulate(ctx, xy, speed, truth, 1000 * int(seed) + segment, rate)
+        # the battery carries over: its state of charge goes on from where the last segment cut
+        sim = _simulate(ctx, xy, speed, truth, 1000 * int(seed) + segment, rate,
+                        flown.energy_drawn_J)
         flown.e_avail = sim.energy_available_J
         frame = sim.frame
         segment += 1

@@ -38,9 +38,10 @@ def bench_replan_cmd(
         print_json(result.to_dict())
         return
     table = Table(title=f"{result.scenario}: replanning ({result.replans} warm replans)")
-    for col in ("cold plan s", "median s", "p95 s", "max s", "p95 / target", "all safe"):
+    for col in ("cold plan s", "median s", "p95 s", "max s", "p95 / target", "all safe",
+                "nothing fits"):
         table.add_column(col, justify="right")
     table.add_row(f"{result.cold_s:.2f}", f"{result.median_s:.3f}", f"{result.p95_s:.3f}",
                   f"{result.max_s:.3f}", f"{result.p95_s / result.target_p95_s:.2f}",
-                  "yes" if result.all_safe else "NO")
+                  "yes" if result.all_safe else "NO", str(result.nothing_fits))
     out.print(table)

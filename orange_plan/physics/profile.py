@@ -84,51 +84,76 @@ class Driver:
     def run(self, n: int) -> dict:
         """The next ``n`` samples (fewer when the path ends): arrays ``t`` [s], ``s`` [m]
         (horizontal arclength driven, laps included), ``v`` [m/s], ``accel`` [m/s^2] over the
-        sample, ``step`` (sub-step index)."""
+        sample, ``step`` (sub-step index).
+
+        One Python iteration per sample is the planner's inner loop (every walk, return and
+        replan is driven), so the state lives in locals and the sub-step is a pointer that
+        only moves forwards (the arclength never decreases; laps look it up again): the
+        arithmetic is the Notes' rule, in the same order as before this loop was inlined.
+        """
         t_out, s_out, v_out, a_out, j_out = [], [], [], [], []
-        n_steps, a_dt, dt = len(self.speed), self.a * self.dt, self.dt
+        edges, speed, cos = self.edges, self.speed, self.cos
+        n_steps, length, repeat = len(speed), self.length, self.repeat
+        a, dt, duty, every = self.a, self.dt, self.duty, self.every
+        a_dt, two_a = a * dt, 2 * a
+        stops = duty < 1.0
+        s, v, t, moving = self.s, self.v, self.t, self.moving
+        phase, next_stop, arrived = self.phase, self.next_stop, self.arrived
+        finished = self.finished
+        j = min(bisect_right(edges, s % length if repeat else min(s, length)) - 1, n_steps - 1)
+        last_lap = s % length if repeat else 0.0
         for _ in range(n):
-            if self.finished:
+            if finished:
                 break
-            lap_s = self.s % self.length if self.repeat else min(self.s, self.length)
-            j = min(bisect_right(self.edges, lap_s) - 1, n_steps - 1)
-            target = self._target(j)
-            v_new = max(0.0, self.v + min(max(target - self.v, -a_dt), a_dt))
-            t_out.append(self.t)
-            s_out.append(self.s)
-            v_out.append(self.v)
-            a_out.append((v_new - self.v) / dt)
+            if repeat:
+                lap_s = s % length
+                if lap_s < last_lap:  # a new lap: look the sub-step up again
+                    j = min(bisect_right(edges, lap_s) - 1, n_steps - 1)
+                last_lap = lap_s
+            else:
+                lap_s = s if s < length else length
+            while j < n_steps - 1 and edges[j + 1] <= lap_s:
+                j += 1
+            # the target speed (``_target``)
+            if arrived:
+                target = 0.0
+            else:
+                target = cruise = speed[j]
+                if stops:
+                    if phase == "move" and moving >= next_stop:
+                        phase = "brake"
+                    if phase == "brake" and v <= 0:
+                        phase = "stop"
+                    if phase == "stop" and t >= moving / duty:
+                        phase, next_stop = "move", moving + every
+                    if phase != "move":
+                        target = 0.0
+                if target and not repeat:
+                    remaining = length - s if length > s else 0.0
+                    brake = math.sqrt(two_a * remaining) - a_dt
+                    creep = CREEP_FRACTION * cruise
+                    target = min(cruise, brake if brake > creep else creep)
+            dv = target - v
+            v_new = v + (a_dt if dv > a_dt else (-a_dt if dv < -a_dt else dv))
+            if v_new < 0.0:
+                v_new = 0.0
+            t_out.append(t)
+            s_out.append(s)
+            v_out.append(v)
+            a_out.append((v_new - v) / dt)
             j_out.append(j)
-            if self.v > 0 or v_new > 0:
-                self.moving += dt
-            self.s += 0.5 * (self.v + v_new) * dt * self.cos[j]
-            self.v, self.t = v_new, self.t + dt
-            if not self.repeat and self.length - self.s <= 1e-6:
-                self.arrived = True
-            if self.arrived and self.v <= 0 and self.t >= self.moving / self.duty - 1e-9:
-                self.finished = True  # at rest at the end, the duty cycle waited out
+            if v > 0 or v_new > 0:
+                moving += dt
+            s += 0.5 * (v + v_new) * dt * cos[j]
+            v, t = v_new, t + dt
+            if not repeat and length - s <= 1e-6:
+                arrived = True
+            if arrived and v <= 0 and t >= moving / duty - 1e-9:
+                finished = True  # at rest at the end, the duty cycle waited out
+        self.s, self.v, self.t, self.moving = s, v, t, moving
+        self.phase, self.next_stop, self.arrived, self.finished = phase, next_stop, arrived, finished
         return {"t": np.asarray(t_out), "s": np.asarray(s_out), "v": np.asarray(v_out),
                 "accel": np.asarray(a_out), "step": np.asarray(j_out, dtype=int)}
-
-    def _target(self, j: int) -> float:
-        if self.arrived:
-            return 0.0
-        cruise = self.speed[j]
-        if self.duty < 1.0:
-            if self.phase == "move" and self.moving >= self.next_stop:
-                self.phase = "brake"
-            if self.phase == "brake" and self.v <= 0:
-                self.phase = "stop"
-            if self.phase == "stop" and self.t >= self.moving / self.duty:
-                self.phase, self.next_stop = "move", self.moving + self.every
-            if self.phase != "move":
-                return 0.0
-        if not self.repeat:
-            remaining = max(self.length - self.s, 0.0)
-            brake = math.sqrt(2 * self.a * remaining) - self.a * self.dt
-            return min(cruise, max(brake, CREEP_FRACTION * cruise))
-        return cruise
-
 
 def spread_yaw_rate(heading, last_heading, carry, k: int, dt: float):
     """Heading increments spread over ``k`` samples (causal box filter) -> yaw rate [rad/s].
@@ -333,7 +358,7 @@ def _drive_kinematics(edges_list, speed_list, cos_list, accel_max: float, dt: fl
                     break
                 g += ahead
         cruise = speed[g]
-        # Driver._target
+        # Driver.run's target speed
         if stops:
             changed = False
             if t >= first_stop:  # moving <= t: no stop is due before

@@ -330,18 +330,40 @@ def query_goals(reach: Reachability, goals_xy, names=None) -> list[GoalResult]:
     return results
 
 
-def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> GoalResult:
+def _connections(reach: Reachability, tree: cKDTree, goal: np.ndarray):
+    """Roadmap vertices joined to ``goal`` by an exactly checked free segment (its
+    ``K_NEAREST``, the start and home), and the exact energies in and out of them [J]."""
     rm = reach.roadmap
-    goal = np.array([x, y])
-    k = min(K_NEAREST, rm.n_vertices)
-    _, near = tree.query(goal, k=k)
+    _, near = tree.query(goal, k=min(K_NEAREST, rm.n_vertices))
     cand = np.unique(np.r_[np.atleast_1d(near), reach.start_index, rm.home_index])
     ok = reach.exact.world.segments_free(np.repeat(goal[None], len(cand), 0), rm.xy_m[cand])
     cand = cand[ok]
     if len(cand) == 0:
+        return cand, np.zeros(0), np.zeros(0)
+    e_in, e_out, _, _ = reach.exact.costs(rm.xy_m[cand], np.repeat(goal[None], len(cand), 0))
+    return cand, e_in, e_out
+
+
+def way_home(reach: Reachability, xy, tree: cKDTree | None = None) -> np.ndarray | None:
+    """The cheapest roadmap way home from a free point ``xy`` (its polyline, from ``xy``),
+    or None when no exactly checked segment joins it to a vertex connected to home."""
+    goal = np.asarray(xy, float).reshape(2)
+    tree = tree if tree is not None else cKDTree(reach.roadmap.xy_m)
+    cand, _, e_out = _connections(reach, tree, goal)
+    via_out = e_out + reach.to_home.energy_J[cand]
+    if not len(cand) or not np.isfinite(via_out.min()):
+        return None
+    b = int(cand[np.argmin(via_out)])
+    return clean_polyline(dedupe(np.vstack([goal, reach.roadmap.xy_m[reach.to_home.path(b)]])))
+
+
+def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> GoalResult:
+    rm = reach.roadmap
+    goal = np.array([x, y])
+    cand, e_in, e_out = _connections(reach, tree, goal)
+    if len(cand) == 0:
         return GoalResult(x, y, name, True, False, reason="no collision-free connection to the "
                           "roadmap")
-    e_in, e_out, _, _ = reach.exact.costs(rm.xy_m[cand], np.repeat(goal[None], len(cand), 0))
     via_in = reach.from_start.energy_J[cand] + e_in
     via_out = e_out + reach.to_home.energy_J[cand]
     if not (np.isfinite(via_in.min()) and np.isfinite(via_out.min())):

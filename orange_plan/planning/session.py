@@ -17,7 +17,8 @@ sensed, made with the model the telemetry has taught (a head wind or a heavier l
 shrinks it, a lighter one may extend it), in the world with every map update.
 
 Decision rule (``MissionSession.decision``), in this order, with ``E_avail`` the usable
-battery energy, ``E_used`` the measured battery energy so far (sum of ``P dt``),
+battery energy (the scenario's, or less when the telemetry's state of charge shows a smaller
+battery: ``identify.soc``), ``E_used`` the measured battery energy so far (sum of ``P dt``),
 ``E_home`` the energy of the best roadmap return from the current position evaluated with
 the online model, ``R`` the scenario's reserve for that return and ``sd_home`` its predictive
 standard deviation:
@@ -36,8 +37,9 @@ metre over the recent motion (the plan model's flat-ground figure before any mot
 
 How it is solved: ``identify.online.OnlineEstimator`` updates the model's coefficients and
 covariance from every batch (recursive least squares with forgetting) and measures the energy
-used; the return home is a roadmap path (``planning.reach.query_goals``) re-evaluated exactly
-(``path_energy``) with the online coefficients, and its variance is ``g' Cov g`` (online
+used; the return home is the cheapest roadmap way home (``planning.reach.way_home``) driven
+from rest to rest and re-evaluated exactly (``planning.tour.drive``, the same evaluation as
+the tour's returns) with the online coefficients, and its variance is ``g' Cov g`` (online
 covariance) plus the estimator's spread of the energy per metre in quadrature; a replan is
 ``planning.tour.plan_tour`` from a ``StartState`` with the online model and the updated world.
 
@@ -59,17 +61,18 @@ from dataclasses import asdict, dataclass, fields, replace
 import numpy as np
 import pandas as pd
 import shapely
+from scipy.spatial import cKDTree
 from scipy.stats import norm
 from shapely.geometry import MultiPolygon, Polygon, shape
 
 from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
+from orange_plan.identify.soc import SocCapacity
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.physics.state import MotionState
 from orange_plan.planning.coverage import footprint
-from orange_plan.planning.paths import path_gradient
 from orange_plan.planning.plan import Plan, StartState
-from orange_plan.planning.reach import prepare_reach, query_goals, reserve_J
+from orange_plan.planning.reach import prepare_reach, reserve_J, way_home
 from orange_plan.telemetry.recording import motion_state, recording_from_frame
 
 ACTIONS = ("continue", "replan", "return_home")
@@ -100,6 +103,8 @@ class Decision:
     return_probability : probability that the energy left covers the return [-]
     remaining_range_m : (energy left - reserve) / online energy per metre [m]
     covered_m2 : area sensed so far (sensor footprint along the trail) [m^2]
+    energy_available_J : usable battery energy the decision counts on [J]: the scenario's,
+        or less when the telemetry's ``soc`` shows a smaller battery (``capacity_from_soc``)
     """
 
     action: str
@@ -113,6 +118,7 @@ class Decision:
     return_probability: float
     remaining_range_m: float
     covered_m2: float
+    energy_available_J: float = math.nan
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -164,6 +170,7 @@ class MissionSession:
         self._estimator = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J,
                                           memory_s=memory_s, window_s=window_s)
         self._events: list[dict] = []
+        self._soc = SocCapacity()
         self._history = pd.DataFrame()
         self._window: deque = deque()  # (duration_s, distance_m, measured_J, state, dt) per batch
         if plan is None:
@@ -188,24 +195,54 @@ class MissionSession:
 
     @property
     def energy_available_J(self) -> float:
-        return float(self.ctx.scenario.battery.usable_J)
+        """Usable energy counted on [J]: the scenario's, or the smaller capacity the
+        telemetry's state of charge shows (``capacity_from_soc``): an aged battery must not
+        be spent as if it were new."""
+        claimed = float(self.ctx.scenario.battery.usable_J)
+        shown = self._soc.usable_J()
+        return claimed if shown is None else min(claimed, shown)
+
+    @property
+    def capacity_shortfall_J(self) -> float:
+        """Scenario usable energy minus the energy counted on [J] (>= 0)."""
+        return float(self.ctx.scenario.battery.usable_J) - self.energy_available_J
 
     @property
     def online_model(self):
         """The scenario model with the estimator's coefficients and covariance."""
-        est = self._estimator
-        return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta)), est.cov)
+        def build():
+            est = self._estimator
+            return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta)),
+                                             est.cov)
+        return self._per_batch("online_model", build)
 
     @property
     def world_now(self):
         """The current world with the wind measured over the window (the scenario's wind
         where the samples carry none)."""
-        duration = sum(float(np.sum(b[4])) for b in self._window)
-        if duration <= 0:
-            return self.ctx.world
-        wx = sum(float(np.sum(np.asarray(b[3].wind_x_mps) * b[4])) for b in self._window)
-        wy = sum(float(np.sum(np.asarray(b[3].wind_y_mps) * b[4])) for b in self._window)
-        return replace(self.ctx.world, wind_xy_mps=(wx / duration, wy / duration))
+        def build():
+            duration = sum(float(np.sum(b[4])) for b in self._window)
+            if duration <= 0:
+                return self.ctx.world
+            wx = sum(float(np.sum(np.asarray(b[3].wind_x_mps) * b[4])) for b in self._window)
+            wy = sum(float(np.sum(np.asarray(b[3].wind_y_mps) * b[4])) for b in self._window)
+            return replace(self.ctx.world, wind_xy_mps=(wx / duration, wy / duration))
+        return self._per_batch("world_now", build)
+
+    def _estimate(self):
+        """The online estimator's figures after the last batch."""
+        return self._per_batch("estimate", self._estimator.estimate)
+
+    def _per_batch(self, name: str, build):
+        """A figure that only changes when a batch arrives or the map changes, built once
+        between those events (a decision reads each several times)."""
+        cache = self.__dict__.setdefault("_batch_cache", {})
+        if name not in cache:
+            cache[name] = build()
+        return cache[name]
+
+    def _new_batch(self) -> None:
+        self.__dict__["_batch_cache"] = {}
 
     def _adopt(self, plan: Plan) -> None:
         """Fly ``plan`` from now on; its figures were made with the current online model
@@ -277,6 +314,7 @@ class MissionSession:
 
     def _ingest(self, frame: pd.DataFrame) -> None:
         """Energy, estimator, trail and covered area from a validated batch."""
+        self._new_batch()
         history = pd.concat([self._history, frame], ignore_index=True)
         t = frame["t_s"].to_numpy(float)
         xy = frame[["x_m", "y_m"]].to_numpy(float)
@@ -288,7 +326,11 @@ class MissionSession:
             state = _tail(state, len(frame), len(rec.frame))
             state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
             power = frame["power_W"].to_numpy(float)
+            used_before = self.energy_used_J
             self._estimator.update(state, power, dt)
+            if "soc" in frame:
+                self._soc.add(used_before + np.cumsum(power * dt),
+                              pd.to_numeric(frame["soc"], errors="coerce").to_numpy(float))
             speed = np.asarray(state.speed_mps, float) * np.ones(len(t))
             self._remember(float(dt.sum()), float(np.sum(speed * dt)), float(power @ dt),
                            state, dt)
@@ -336,7 +378,7 @@ class MissionSession:
             position_xy_m=self.position_xy_m, energy_used_J=used, time_s=self.time_s,
             energy_to_home_J=home.energy_J, reserve_J=home.reserve_J, homing_margin_J=margin,
             return_probability=prob, remaining_range_m=left / per_m if per_m > 0 else math.inf,
-            covered_m2=float(self.covered.area))
+            covered_m2=float(self.covered.area), energy_available_J=avail)
         if not math.isfinite(home.energy_J):
             return Decision("return_home", "no way home was found from the current position; "
                             "head home by the last known way", **figures)
@@ -387,7 +429,7 @@ class MissionSession:
                 b[5] = float(np.sum(np.asarray(self._plan_model.power_W(
                     b[3].with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b[4]))
         predicted = sum(b[5] for b in self._window) / dist
-        sd = self._estimator.estimate().energy_per_m_sd_J
+        sd = self._estimate().energy_per_m_sd_J
         if not (math.isfinite(sd) and sd > 0):
             return None
         return measured, predicted, sd
@@ -395,7 +437,7 @@ class MissionSession:
     def _energy_per_m_J(self) -> float:
         """Online energy per metre of the recent motion; the plan model's flat-ground figure
         before the robot has moved [J/m]."""
-        e = self._estimator.estimate().energy_per_m_J
+        e = self._estimate().energy_per_m_J
         if math.isfinite(e) and e > 0:
             return float(e)
         from orange_plan.physics.range import simplified_range
@@ -404,19 +446,23 @@ class MissionSession:
                                 self.ctx.world.default_crr).energy_per_m_J
 
     def _return_home(self) -> _Home:
-        """Best roadmap return from the position, evaluated with the online model."""
-        reach = self._reach()
+        """Best roadmap return from the position, driven from rest to rest and evaluated with
+        the online model (energy and gradient from one drive, as the tour's returns)."""
+        from orange_plan.planning.tour import drive
+
+        reach, tree = self._reach()
         model = self.online_model
         exact = replace(reach.exact, model=model, world=self.world_now)
         for xy in self._free_positions():
-            goal = query_goals(replace(reach, exact=exact), [xy])[0]
-            if goal.energy_goal_to_home_J is None:
+            back = way_home(replace(reach, exact=exact), xy, tree)
+            if back is None:
                 continue
-            path = goal.path_xy_m
-            at = int(np.flatnonzero(np.hypot(*(path - np.asarray(xy)).T) < 1e-9)[-1])
-            back = path[at:]
-            var = float(model.energy_variance_J2(path_gradient(exact, back)))
-            energy = float(goal.energy_goal_to_home_J)
+            if len(back) < 2:  # at home
+                return _Home(0.0, float(reserve_J(self.ctx.scenario.mission.reserve,
+                                                  self.energy_available_J, 0.0)), 0.0)
+            driven = drive(exact, back, exact.speed_mps)
+            energy = float(driven.energy_J[-1])
+            var = float(model.energy_variance_J2(driven.gradient[-1]))
             spread = self._relative_spread() * energy
             sd = math.sqrt(max(var, 0.0) + spread**2)
             res = float(reserve_J(self.ctx.scenario.mission.reserve, self.energy_available_J,
@@ -435,15 +481,17 @@ class MissionSession:
     def _relative_spread(self) -> float:
         """The online estimator's predictive sd of the energy per metre over its value
         (conditions: gusts, terrain, stops) [-]; 0 before it can say."""
-        est = self._estimator.estimate()
+        est = self._estimate()
         e, sd = est.energy_per_m_J, est.energy_per_m_sd_J
         return float(sd / e) if (math.isfinite(e) and e > 0 and math.isfinite(sd)) else 0.0
 
     def _reach(self):
-        """Roadmap and to-home field of the current world (built once per map version)."""
+        """Roadmap and to-home field of the current world, and a k-d tree of its vertices
+        (built once per map version)."""
         if self._home_reach is None:
-            self._home_reach = prepare_reach(self.ctx, None, 0.0, n_vertices=self.n_vertices,
-                                             seed=self.seed, with_gradient=False)
+            reach = prepare_reach(self.ctx, None, 0.0, n_vertices=self.n_vertices,
+                                  seed=self.seed, with_gradient=False)
+            self._home_reach = (reach, cKDTree(reach.roadmap.xy_m))
         return self._home_reach
 
     def _remaining_tour_margin_J(self, used: float, avail: float) -> float:
@@ -483,8 +531,9 @@ class MissionSession:
             When no tour fits (e.g. the robot should go home: the battery left cannot visit
             anything new and come back).
         """
-        start = StartState(self.position_xy_m, self.energy_used_J, self.time_s,
-                           None if self.covered.is_empty else self.covered)
+        # a battery smaller than the scenario's is planned as that much energy already spent
+        start = StartState(self.position_xy_m, self.energy_used_J + self.capacity_shortfall_J,
+                           self.time_s, None if self.covered.is_empty else self.covered)
         plan = self._plan(start)
         self._events.append({"plan": plan.to_geojson()})
         self._adopt(plan)
@@ -530,6 +579,7 @@ class MissionSession:
         new_map = replace(m, obstacles=(*m.obstacles, *new_obstacles),
                           no_go=(*m.no_go, *new_no_go))
         self.ctx = replace(self.ctx, world=replace(self.ctx.world, map=new_map))
+        self._new_batch()
         self._events.append({"map": {"obstacles": [shapely.geometry.mapping(p)
                                                    for p in new_obstacles],
                                      "no_go": [shapely.geometry.mapping(p) for p in new_no_go]}})

@@ -89,6 +89,9 @@ class LiveMission:
     events: int = 0
     updated_s: float = field(default_factory=time.time)
     last_decision: dict | None = None
+    last_batch: list | None = None
+    """The last event's samples when it was a telemetry batch (an exact resend of it, after
+    an answer that was lost on the way, gets that answer again)."""
 
     @property
     def ctx(self):
@@ -176,10 +179,14 @@ class MissionRegistry:
         """Feed one telemetry batch; the decision after it, once stored."""
         live = self.get(mission_id)
         with live.lock, self._untouched_unless_stored(live):
+            if live.last_batch is not None and samples == live.last_batch:
+                return live.last_decision  # acknowledged already: its answer was lost
             decision = live.session.feed(samples)
             live.samples += len(samples)
             live.batches += 1
-            return self._commit(live, [("telemetry", {"samples": samples})], decision)
+            answer = self._commit(live, [("telemetry", {"samples": samples})], decision)
+            live.last_batch = samples
+            return answer
 
     def update_map(self, mission_id: str, obstacles: list, no_go: list, replan: bool) -> dict:
         """Add obstacles / no-go zones (GeoJSON geometries); the decision after it.
@@ -241,6 +248,7 @@ class MissionRegistry:
                 self._live.pop(live.row.id, None)
             raise
         self._count(live, events)
+        live.last_batch = None
         live.last_decision = decision_dict(decision)
         return live.last_decision
 
@@ -274,6 +282,8 @@ class MissionRegistry:
                     live.map_version += 1
             self._count(live, [(e.kind, None) for e in events])
             live.last_decision = decision_dict(session.decision())
+            if events and events[-1].kind == "telemetry":
+                live.last_batch = events[-1].payload["samples"]
         except Exception as exc:
             log.exception("replaying mission %s failed", row.id)
             raise MissionUnavailable(

@@ -131,7 +131,7 @@ def _roughness(rng, length_m: float, std: float, corr_m: float):
 
 def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
              sample_rate_Hz: float = 1.0 / SAMPLE_DT_S, to_depletion: bool = False,
-             max_duration_s: float = 172_800.0) -> SimResult:
+             max_duration_s: float = 172_800.0, energy_start_J: float = 0.0) -> SimResult:
     """Drive ``route`` in the scenario's world under ``truth`` and record it.
 
     Parameters
@@ -145,6 +145,9 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     to_depletion : repeat the route (closed, or out and back) until the truth's usable energy
         is spent; else drive it once
     max_duration_s : hard stop on mission time [s]
+    energy_start_J : true energy already drawn from the battery when this drive starts [J]
+        (a mission flown as several drives): ``soc`` and depletion count it, ``energy_J``
+        does not
 
     Returns
     -------
@@ -160,6 +163,8 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     if not (0 < sample_rate_Hz <= MAX_RATE_HZ):
         raise InputError(f"sample_rate_Hz (--rate-hz) = {sample_rate_Hz!r} must be in "
                          f"(0, {MAX_RATE_HZ:g}] Hz")
+    if not (math.isfinite(energy_start_J) and energy_start_J >= 0):
+        raise InputError(f"energy_start_J = {energy_start_J!r} must be a finite number >= 0 J")
     if not (0 < max_duration_s < math.inf):
         raise InputError(f"max_duration_s (--max-duration-s) = {max_duration_s!r} must be a "
                          "positive number of seconds")
@@ -195,7 +200,7 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     heading0 = step_heading[0]
     carry, k_turn = np.zeros(0), max(1, round(TURN_SPREAD_S / dt))
 
-    chunks, used, depleted = [], 0.0, False
+    chunks, used, depleted = [], float(energy_start_J), False
     per_chunk = max(1, round(CHUNK_S / dt))
     while not driver.finished and driver.t < max_duration_s and not depleted:
         kin = driver.run(min(per_chunk, max(1, round((max_duration_s - driver.t) / dt))))
@@ -228,7 +233,7 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     laps = float(frame.pop("_s").iloc[-1] / edges[-1])
     _add_noise(frame, rng, truth)
     distance = float(np.sum(frame["v_mps"]) * dt)
-    return SimResult(frame, used, e_avail, distance, float(len(frame) * dt),
+    return SimResult(frame, used - float(energy_start_J), e_avail, distance, float(len(frame) * dt),
                      float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps, clipped)
 
 
