@@ -275,7 +275,7 @@ class MissionSession:
         """
         frame = self._validated(samples)
         self._ingest(frame)
-        self._events.append({"feed": _records(frame)})
+        self._events.append({"feed": frame})  # as JSON records only when state_dict asks
         return self.decision()
 
     def _validated(self, samples) -> pd.DataFrame:
@@ -603,7 +603,9 @@ class MissionSession:
             "n_vertices": self.n_vertices, "seed": self.seed,
             "replan_margin_J": self.replan_margin_J, "planner_kwargs": self.planner_kwargs,
             "memory_s": self.memory_s, "window_s": self.window_s,
-            "plan": self._initial_plan.to_geojson(), "events": self._events,
+            "plan": self._initial_plan.to_geojson(),
+            "events": [{"feed": _records(e["feed"])} if "feed" in e else e
+                       for e in self._events],
         }, default=_json_default))
 
     @classmethod
