@@ -7,8 +7,8 @@ course to depletion in a wind the forecast got wrong, drawn per trial (``VARIATI
 
 Estimates per trial: offline (Eq. 11 on the course, before take-off) and online (the
 ``OnlineEstimator`` on the flight's own samples, at ``PREDICT_AT`` of the flight, and the mean
-over those fractions), each from the a-priori scenario and from a calibration flight (another
-trial draw: that day's wind is in its fit).
+over those fractions), each from the a-priori scenario and from ``CALIBRATION_RUNS`` calibration flights (fresh
+trial draws: those days' winds are in the fit).
 """
 
 from __future__ import annotations
@@ -21,8 +21,10 @@ from orange_plan.context import load_context
 from orange_plan.identify.bench import PREDICT_AT, accuracy_pct, bench_route
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
+    CALIBRATION_RUNS,
     Variation,
     calibrate_on,
+    calibration_runs,
     course_range_m,
     draw_truth,
     online_ranges_m,
@@ -45,8 +47,8 @@ MODELS = ("a priori", "calibrated")
 
 
 def count(trials: int) -> int:
-    """Progress items: the calibration flight and one per trial."""
-    return 1 + trials
+    """Progress items: the calibration flights and one per trial."""
+    return CALIBRATION_RUNS + trials
 
 
 def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
@@ -54,10 +56,9 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
     ctx = load_context(Path(scenario_dir) / f"{SCENARIO}.toml")
     rng = np.random.default_rng([seed, 3])
     route = bench_route(ctx)
-    cal_run = run_to_depletion(ctx, route, draw_truth(ctx, VARIATION, rng),
-                               int(rng.integers(2**31)))
-    fitted, energy_factor = calibrate_on(ctx, cal_run, "AR Drone calibration flight")
-    if tick:
+    fitted, energy_factor = calibrate_on(ctx, calibration_runs(ctx, route, VARIATION, rng),
+                                         "AR Drone calibration flight")
+    for _ in range(CALIBRATION_RUNS if tick else 0):
         tick()
     beliefs = {"a priori": ctx, "calibrated": with_belief(ctx, fitted, energy_factor)}
     rows = []
@@ -114,8 +115,8 @@ def section(rows: list[dict], figure: str, trials: int) -> Section:
         f"the flight's own samples (distance so far + remaining energy / live energy per "
         f"metre) at {at} of the flight, and its mean over "
         + ", ".join(f"{100 * f:.0f}" for f in PREDICT_AT) + " %. Calibrated: both started "
-        "from coefficients fitted on one calibration flight (another wind draw) and its "
-        "measured usable energy.",
+        f"from coefficients fitted on {CALIBRATION_RUNS} calibration flights (fresh wind "
+        "draws) and their mean measured usable energy.",
     ]
     data = {"cells": [{"model": c["model"], "d_true_m": c["d_true_m"].mean,
                        **{f"accuracy_{k}_pct": c[k].mean for k in ("offline", "online",

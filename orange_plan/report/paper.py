@@ -10,6 +10,7 @@ from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError
 from orange_plan.report import ar_drone, real_data, rusti_v1, rusti_v2, wear
 from orange_plan.report.markdown import Section, write_report
+from orange_plan.report.trials import CALIBRATION_RUNS
 
 SIMULATED = (  # module, figure file
     (rusti_v1, "fig1_rusti_v1_duty_cycle.png"),
@@ -75,9 +76,9 @@ def generalised_note(sections: dict[str, Section]) -> Section:
         "The calibrated rows are in the tables above, beside the a-priori ones: Rusti V1.0 "
         "(per course and duty cycle), Rusti V2.0 (per surface, battery and speed) and the AR "
         "Drone (offline and online, each started from the calibrated model). Calibration is "
-        "`identify.calibrate.Calibrator` on one simulated calibration run to depletion "
-        "(another truth draw of the same experiment) with the usable energy that run "
-        "measured.",
+        f"`identify.calibrate.Calibrator` on {CALIBRATION_RUNS} simulated calibration runs "
+        "to depletion (fresh truth draws of the same experiment) with the mean usable "
+        "energy they measured.",
         "**Not in this report: the terms that diagnosis adds.** `orange-plan diagnose` "
         "(issue #6) is not built yet, so there is no 'with diagnosed terms' row; none is "
         "faked. When it exists, its terms would join each calibrated model here.",

@@ -112,7 +112,7 @@ def plot(rows: list[dict], path: Path) -> Path:
                    yerr=np.nan_to_num([c[col].sd for c in summary]), color=colour, capsize=2,
                    label=col)
         ax.set_xticks(x, [c["group"].replace("Trip", "") for c in summary], fontsize=8)
-        lowest = min(c[col].mean for c in summary for col in MODELS)
+        lowest = min(c[col].mean - np.nan_to_num(c[col].sd) for c in summary for col in MODELS)
         ax.set_ylim(min(0.0, lowest - 10), 105)  # a model off by x3 has negative accuracy
         ax.set_title(title, fontsize=10)
         ax.grid(axis="y", alpha=0.3)

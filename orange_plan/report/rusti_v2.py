@@ -7,8 +7,9 @@ of ``bench online`` (``identify.bench.bench_route``: out-and-back rays from home
 most 10 % of the range) until the battery is spent.
 
 Estimates: the generalised offline ORangE (Eq. 11, path integral on the course) a priori and
-calibrated on one drive per surface with b1 at v1 (coefficients fitted on its recording; its
-measured usable energy / the b1 scenario's, taken as both packs' state of health).
+calibrated on ``CALIBRATION_RUNS`` drives per surface with b1 at v1 (coefficients fitted on
+their recordings; their measured usable energy / the b1 scenario's, taken as both packs'
+state of health).
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ from orange_plan.context import load_context
 from orange_plan.identify.bench import bench_route
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
+    CALIBRATION_RUNS,
     Variation,
     calibrate_on,
+    calibration_runs,
     course_range_m,
     draw_truth,
     error_pct,
@@ -52,7 +55,7 @@ def scenario_name(surface: str, pack: str, speed: str) -> str:
 
 def count(trials: int) -> int:
     """Progress items: one per run to depletion (calibration drives included)."""
-    return len(SURFACES) * (1 + len(PACKS) * len(SPEEDS) * trials)
+    return len(SURFACES) * (CALIBRATION_RUNS + len(PACKS) * len(SPEEDS) * trials)
 
 
 def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
@@ -60,13 +63,13 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
     rows = []
     for k, surface in enumerate(SURFACES):
         rng = np.random.default_rng([seed, 2, k])
-        wear = {"rolling_kg": SURFACE_ROLLING[surface]}
+        surface_bias = {"rolling_kg": SURFACE_ROLLING[surface]}
         cal_ctx = load_context(Path(scenario_dir) / f"{scenario_name(surface, 'b1', 'v1')}.toml")
         cal_route = bench_route(cal_ctx)
-        cal_run = run_to_depletion(cal_ctx, cal_route, draw_truth(cal_ctx, VARIATION, rng, wear),
-                                   int(rng.integers(2**31)))
-        fitted, energy_factor = calibrate_on(cal_ctx, cal_run, f"{surface} calibration drive")
-        if tick:
+        fitted, energy_factor = calibrate_on(
+            cal_ctx, calibration_runs(cal_ctx, cal_route, VARIATION, rng, surface_bias),
+            f"{surface} calibration drive")
+        for _ in range(CALIBRATION_RUNS if tick else 0):
             tick()
         for pack in PACKS:
             for speed in SPEEDS:
@@ -75,7 +78,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
                 prior_m = course_range_m(ctx, route)
                 calibrated_m = course_range_m(with_belief(ctx, fitted, energy_factor), route)
                 for trial in range(trials):
-                    sim = run_to_depletion(ctx, route, draw_truth(ctx, VARIATION, rng, wear),
+                    sim = run_to_depletion(ctx, route, draw_truth(ctx, VARIATION, rng, surface_bias),
                                            int(rng.integers(2**31)))
                     rows.append({"surface": surface, "pack": pack, "speed": speed,
                                  "trial": trial, "d_true_m": sim.distance_m,
@@ -121,8 +124,9 @@ def section(rows: list[dict], figure: str, trials: int) -> Section:
         "scenarios run to depletion on the probe course of `bench online`.",
         f"Truth: {VARIATION.describe()}; rolling_kg x "
         + ", ".join(f"{s} {f:g}" for s, f in SURFACE_ROLLING.items()) + ".",
-        "Calibrated: coefficients fitted on one drive per surface with b1 at v1 (another "
-        "truth draw), its measured usable energy taken as both packs' state of health.",
+        f"Calibrated: coefficients fitted on {CALIBRATION_RUNS} drives to depletion per "
+        "surface with b1 at v1 (fresh truth draws), their mean measured usable energy taken "
+        "as both packs' state of health.",
     ]
     data = {"cells": [{"surface": c["surface"], "pack": c["pack"], "speed": c["speed"],
                        "d_true_m": c["d_true_m"].mean,

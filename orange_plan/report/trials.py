@@ -109,10 +109,17 @@ def draw_truth(ctx: Context, variation: Variation, rng: np.random.Generator,
     return truth
 
 
-def run_to_depletion(ctx: Context, route: Route, truth: dict, seed: int) -> SimResult:
+LOGGER_HZ = 2.0
+"""Recording rate of runs whose log is fitted or streamed (calibration drives, the wear
+missions): a battery logger's rate, and five times fewer samples to fit than the
+simulator's 10 Hz default [Hz]."""
+
+
+def run_to_depletion(ctx: Context, route: Route, truth: dict, seed: int,
+                     sample_rate_Hz: float = 10.0) -> SimResult:
     """Drive ``route`` round and round under ``truth`` until its usable energy is spent."""
     return simulate(ctx, route, truth_from_dict(truth, "report truth"), seed=seed,
-                    to_depletion=True)
+                    sample_rate_Hz=sample_rate_Hz, to_depletion=True)
 
 
 def with_duty_cycle(ctx: Context, duty_cycle: float) -> Context:
@@ -148,19 +155,32 @@ def course(ctx: Context, xy_m) -> Route:
     return Route(xy, np.full(len(xy), ctx.cruise_speed_mps), "report course")
 
 
-def calibrate_on(ctx: Context, sim: SimResult, source: str) -> tuple[object, float]:
-    """A priori calibration from one run to depletion: the coefficients fitted on its
-    recording (``identify.calibrate.Calibrator``) and its measured state of health (energy
-    the run drew / the scenario's usable energy).
+CALIBRATION_RUNS = 3
+"""Calibration runs to depletion per robot: one run's own draw (its battery, its day) would
+otherwise bias every estimate made from it."""
+
+
+def calibrate_on(ctx: Context, sims: list[SimResult], source: str) -> tuple[object, float]:
+    """A priori calibration from runs to depletion: the coefficients fitted on their
+    recordings (``identify.calibrate.Calibrator``) and the measured state of health (mean
+    energy a run drew / the scenario's usable energy).
 
     Returns (fitted EnergyModel, energy factor).
     """
     from orange_plan.identify.calibrate import Calibrator
     from orange_plan.telemetry.recording import recording_from_frame
 
-    rec = recording_from_frame(sim.frame, source)
-    fitted = Calibrator().fit([rec], ctx).model_
-    return fitted, rec.energy_J / ctx.scenario.battery.usable_J
+    recs = [recording_from_frame(sim.frame, f"{source} {k}") for k, sim in enumerate(sims)]
+    fitted = Calibrator().fit(recs, ctx).model_
+    return fitted, float(np.mean([r.energy_J for r in recs])) / ctx.scenario.battery.usable_J
+
+
+def calibration_runs(ctx: Context, route: Route, variation: Variation, rng,
+                     extra_bias: dict[str, float] | None = None) -> list[SimResult]:
+    """``CALIBRATION_RUNS`` runs to depletion, each a fresh truth draw of the experiment."""
+    return [run_to_depletion(ctx, route, draw_truth(ctx, variation, rng, extra_bias),
+                             int(rng.integers(2**31)), LOGGER_HZ)
+            for _ in range(CALIBRATION_RUNS)]
 
 
 def error_pct(d_est_m: float, d_true_m: float) -> float:

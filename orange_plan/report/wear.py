@@ -31,6 +31,7 @@ from orange_plan.context import load_context
 from orange_plan.identify.bench import bench_route
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
+    LOGGER_HZ,
     Variation,
     calibrate_on,
     course_range_m,
@@ -106,9 +107,9 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
             ctx = with_belief(base, extra_cycles=n)  # the battery as the datasheet ages it
             truth = draw_truth(ctx, VARIATION, rng, DRIFT.bias(n))
             truth["battery"]["capacity_factor"] *= DRIFT.capacity_factor(n, k1)
-            sim = run_to_depletion(ctx, route, truth, int(rng.integers(2**31)))
+            sim = run_to_depletion(ctx, route, truth, int(rng.integers(2**31)), LOGGER_HZ)
             if calibrated is None:  # mission 0: the a-priori calibration
-                calibrated = learned = calibrate_on(ctx, sim, "mission 0")
+                calibrated = learned = calibrate_on(ctx, [sim], "mission 0")
             current = with_belief(base, *learned, n)
             (online_m, _), est = online_ranges_m(current, sim, (ONLINE_AT, 1.0), batch_s=10.0)
             if n > 0:
