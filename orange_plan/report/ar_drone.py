@@ -25,11 +25,11 @@ from orange_plan.report.trials import (
     Variation,
     calibrate_on,
     calibration_runs,
+    cells_by,
     course_range_m,
     draw_truth,
     online_ranges_m,
     run_to_depletion,
-    stat,
     with_belief,
 )
 
@@ -81,13 +81,9 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
 
 def cells(rows: list[dict]) -> list[dict]:
     """Per starting model: accuracy statistics over trials."""
-    out = []
-    for model in MODELS:
-        mine = [r for r in rows if r["model"] == model]
-        out.append({"model": model, "d_true_m": stat(r["d_true_m"] for r in mine),
-                    **{key: stat(r[f"accuracy_{key}_pct"] for r in mine)
-                       for key in ("offline", "online", "online_mean")}})
-    return out
+    return cells_by(rows, {"model": MODELS},
+                    {"d_true_m": "d_true_m", **{key: f"accuracy_{key}_pct"
+                                                for key in ("offline", "online", "online_mean")}})
 
 
 def section(rows: list[dict], figure: str, trials: int) -> Section:

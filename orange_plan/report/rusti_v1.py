@@ -25,12 +25,12 @@ from orange_plan.report.trials import (
     Variation,
     calibrate_on,
     calibration_runs,
+    cells_by,
     course,
     course_range_m,
     draw_truth,
     error_pct,
     run_to_depletion,
-    stat,
     with_belief,
     with_duty_cycle,
 )
@@ -51,6 +51,9 @@ VARIATION = Variation(bias={"rolling_kg": 1.35, "ancillary_W": 1.10}, coefficien
 electronics draw 10 % more, the "fully charged" pack holds 90 % of the nominal energy."""
 
 PAPER_ACCURACY = "66-91"
+MEASURES = {"d_true_m": "d_true_m", "prior": "error_prior_pct",
+            "calibrated": "error_calibrated_pct"}
+"""Cell statistic -> row key."""
 
 
 def count(trials: int) -> int:
@@ -92,15 +95,7 @@ def _tick(tick) -> None:
 
 def cells(rows: list[dict]) -> list[dict]:
     """Per course and duty cycle: mean true range and error statistics."""
-    out = []
-    for label in COURSES:
-        for duty in DUTY_CYCLES:
-            mine = [r for r in rows if r["course"] == label and r["duty_cycle"] == duty]
-            out.append({"course": label, "duty_cycle": duty,
-                        "d_true_m": stat(r["d_true_m"] for r in mine),
-                        "prior": stat(r["error_prior_pct"] for r in mine),
-                        "calibrated": stat(r["error_calibrated_pct"] for r in mine)})
-    return out
+    return cells_by(rows, {"course": COURSES, "duty_cycle": DUTY_CYCLES}, MEASURES)
 
 
 def section(rows: list[dict], figure: str, trials: int) -> Section:

@@ -20,17 +20,18 @@ import numpy as np
 
 from orange_plan.context import load_context
 from orange_plan.identify.bench import bench_route
+from orange_plan.report import rusti_v1
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     CALIBRATION_RUNS,
     Variation,
     calibrate_on,
     calibration_runs,
+    cells_by,
     course_range_m,
     draw_truth,
     error_pct,
     run_to_depletion,
-    stat,
     with_belief,
 )
 
@@ -92,17 +93,8 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
 
 def cells(rows: list[dict]) -> list[dict]:
     """Per surface x pack x speed: mean true range and error statistics."""
-    out = []
-    for surface in SURFACES:
-        for pack in PACKS:
-            for speed in SPEEDS:
-                mine = [r for r in rows if (r["surface"], r["pack"], r["speed"])
-                        == (surface, pack, speed)]
-                out.append({"surface": surface, "pack": pack, "speed": speed,
-                            "d_true_m": stat(r["d_true_m"] for r in mine),
-                            "prior": stat(r["error_prior_pct"] for r in mine),
-                            "calibrated": stat(r["error_calibrated_pct"] for r in mine)})
-    return out
+    return cells_by(rows, {"surface": SURFACES, "pack": PACKS, "speed": SPEEDS},
+                    rusti_v1.MEASURES)
 
 
 def section(rows: list[dict], figure: str, trials: int) -> Section:

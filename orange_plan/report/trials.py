@@ -17,6 +17,7 @@ variation beside its table.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field, replace
 
@@ -228,3 +229,14 @@ def online_ranges_m(belief: Context, sim: SimResult, fractions, batch_s: float =
     t = np.array([h.t_s for h in history])
     picks = [history[int(np.argmin(np.abs(t - f * sim.duration_s)))] for f in fractions]
     return [p.range_total_m for p in picks], est
+
+
+def cells_by(rows: list[dict], levels: dict, measures: dict[str, str]) -> list[dict]:
+    """One cell per combination of ``levels`` (row key -> its values, in table order): the
+    level values and a ``Stat`` per measure (cell key -> row key) over the matching rows."""
+    out = []
+    for combo in itertools.product(*levels.values()):
+        where = dict(zip(levels, combo))
+        mine = [r for r in rows if all(r[k] == v for k, v in where.items())]
+        out.append(where | {name: stat(r[key] for r in mine) for name, key in measures.items()})
+    return out

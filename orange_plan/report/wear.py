@@ -34,12 +34,12 @@ from orange_plan.report.trials import (
     LOGGER_HZ,
     Variation,
     calibrate_on,
+    cells_by,
     course_range_m,
     draw_truth,
     error_pct,
     online_ranges_m,
     run_to_depletion,
-    stat,
     with_belief,
 )
 
@@ -132,13 +132,9 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
 
 def cells(rows: list[dict]) -> list[dict]:
     """Per mission: true range and error statistics over trials."""
-    out = []
-    for n in missions()[1:]:
-        mine = [r for r in rows if r["mission"] == n]
-        out.append({"mission": n, "d_true_m": stat(r["d_true_m"] for r in mine),
-                    "capacity_true_pct": stat(r["capacity_true_pct"] for r in mine),
-                    **{name: stat(r[name] for r in mine) for name in ESTIMATES}})
-    return out
+    return cells_by(rows, {"mission": missions()[1:]},
+                    {"d_true_m": "d_true_m", "capacity_true_pct": "capacity_true_pct",
+                     **{name: name for name in ESTIMATES}})
 
 
 def section(rows: list[dict], figure: str, trials: int) -> Section:
