@@ -187,3 +187,20 @@ def test_output_that_is_a_file_is_refused(tmp_path):
     target.write_text("not a folder")
     code, _, stderr = run_cli("report", "paper", "-o", target)
     assert code == 2 and "exists and is not a folder" in stderr
+
+
+def test_report_is_a_layer_above_sim_identify_and_planning():
+    # the report reuses the simulator, the estimators and the planner; none may depend on it
+    package = REPO / "orange_plan"
+    for layer in ("sim", "identify", "planning", "physics", "telemetry", "world"):
+        for module in (package / layer).rglob("*.py"):
+            text = module.read_text(encoding="utf-8")
+            assert "orange_plan.report" not in text, module.relative_to(REPO)
+
+
+def test_help_names_the_options_and_cites_no_spec():
+    code, stdout, _ = run_cli("report", "paper", "--help")
+    assert code == 0
+    for option in ("--out", "--trials", "--seed", "--data", "--json"):
+        assert option in stdout
+    assert not re.search(r"SPEC|DESIGN\.md|§", stdout)
