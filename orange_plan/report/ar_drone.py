@@ -23,6 +23,7 @@ from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     CALIBRATION_RUNS,
     Variation,
+    advance,
     calibrate_on,
     calibration_runs,
     cells_by,
@@ -58,8 +59,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
     route = bench_route(ctx)
     fitted, energy_factor = calibrate_on(ctx, calibration_runs(ctx, route, VARIATION, rng),
                                          "AR Drone calibration flight")
-    for _ in range(CALIBRATION_RUNS if tick else 0):
-        tick()
+    advance(tick, CALIBRATION_RUNS)
     beliefs = {"a priori": ctx, "calibrated": with_belief(ctx, fitted, energy_factor)}
     rows = []
     for trial in range(trials):
@@ -74,8 +74,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
                                                               sim.distance_m),
                          "accuracy_online_pct": acc[0],
                          "accuracy_online_mean_pct": float(np.mean(acc))})
-        if tick:
-            tick()
+        advance(tick)
     return rows
 
 

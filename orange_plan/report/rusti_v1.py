@@ -23,6 +23,7 @@ from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     CALIBRATION_RUNS,
     Variation,
+    advance,
     calibrate_on,
     calibration_runs,
     cells_by,
@@ -70,8 +71,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
         route = course(base, xy)
         fitted, energy_factor = calibrate_on(
             base, calibration_runs(base, route, VARIATION, rng), f"{name} calibration drive")
-        for _ in range(CALIBRATION_RUNS):
-            _tick(tick)
+        advance(tick, CALIBRATION_RUNS)
         for duty in DUTY_CYCLES:
             ctx = with_duty_cycle(base, duty)
             prior_m = course_range_m(ctx, route)
@@ -84,13 +84,8 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
                              "d_calibrated_m": calibrated_m,
                              "error_prior_pct": error_pct(prior_m, sim.distance_m),
                              "error_calibrated_pct": error_pct(calibrated_m, sim.distance_m)})
-                _tick(tick)
+                advance(tick)
     return rows
-
-
-def _tick(tick) -> None:
-    if tick:
-        tick()
 
 
 def cells(rows: list[dict]) -> list[dict]:

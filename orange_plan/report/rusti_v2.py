@@ -25,6 +25,7 @@ from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     CALIBRATION_RUNS,
     Variation,
+    advance,
     calibrate_on,
     calibration_runs,
     cells_by,
@@ -70,8 +71,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
         fitted, energy_factor = calibrate_on(
             cal_ctx, calibration_runs(cal_ctx, cal_route, VARIATION, rng, surface_bias),
             f"{surface} calibration drive")
-        for _ in range(CALIBRATION_RUNS if tick else 0):
-            tick()
+        advance(tick, CALIBRATION_RUNS)
         for pack in PACKS:
             for speed in SPEEDS:
                 ctx = load_context(Path(scenario_dir) / f"{scenario_name(surface, pack, speed)}.toml")
@@ -86,8 +86,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
                                  "error_prior_pct": error_pct(prior_m, sim.distance_m),
                                  "error_calibrated_pct": error_pct(calibrated_m,
                                                                    sim.distance_m)})
-                    if tick:
-                        tick()
+                    advance(tick)
     return rows
 
 

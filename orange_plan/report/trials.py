@@ -184,6 +184,12 @@ def calibration_runs(ctx: Context, route: Route, variation: Variation, rng,
             for _ in range(CALIBRATION_RUNS)]
 
 
+def advance(tick, items: int = 1) -> None:
+    """Advance a progress bar (``progress.bar``'s tick, or None when none is shown)."""
+    for _ in range(items if tick else 0):
+        tick()
+
+
 def error_pct(d_est_m: float, d_true_m: float) -> float:
     """Range estimation error ``100 |d_est - d_true| / d_true`` [%]."""
     return 100.0 - accuracy_pct(d_est_m, d_true_m)

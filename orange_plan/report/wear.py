@@ -33,6 +33,7 @@ from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     LOGGER_HZ,
     Variation,
+    advance,
     calibrate_on,
     cells_by,
     course_range_m,
@@ -125,8 +126,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
             # between missions: what the whole mission just flown taught the estimator
             learned = (current.model.with_theta(dict(zip(current.model.names, est.theta))),
                        est.energy_used_J / ctx.scenario.battery.usable_J)
-            if tick:
-                tick()
+            advance(tick)
     return rows
 
 
