@@ -218,7 +218,7 @@ def test_no_recordings_is_refused(ctx):
 
 @pytest.mark.skipif(not (DATA / "borealtc").is_dir(), reason="real data not present in ../shared/data")
 def test_real_husky_runs_calibrate_better_than_a_priori():
-    from orange_plan.identify.bench import CALIBRATION_CASES, load_runs, whole_run_energy_J
+    from orange_plan.bench.identify import CALIBRATION_CASES, load_runs, whole_run_energy_J
 
     repo = Path(__file__).resolve().parents[1]
     ctx = load_context(repo / "scenarios" / "husky_a200.toml")
@@ -238,7 +238,7 @@ def test_real_husky_runs_calibrate_better_than_a_priori():
 
 @pytest.mark.skipif(not (DATA / "tum_bmw_i3").is_dir(), reason="real data not present in ../shared/data")
 def test_real_bmw_trips_calibrate_physically():
-    from orange_plan.identify.bench import CALIBRATION_CASES, load_runs, whole_run_energy_J
+    from orange_plan.bench.identify import CALIBRATION_CASES, load_runs, whole_run_energy_J
 
     repo = Path(__file__).resolve().parents[1]
     ctx = load_context(repo / "scenarios" / "bmw_i3.toml")

@@ -2,7 +2,7 @@
 
 Small random maps (random boxes, a random hill or ramp, a random slow surface) are solved by
 the roadmap and by a brute-force 16-connected grid Dijkstra on the same EnergyModel
-(``planning.gridref``, edges costed with ``pathcost`` on exact terrain). The energy used so
+(``bench.gridref``, edges costed with ``pathcost`` on exact terrain). The energy used so
 far is set so that about half of the goals fit.
 
 Why the invariant is stated this way: the grid is itself only an upper bound of the best
@@ -25,9 +25,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from planning_worlds import draw_world_spec, write_world
 
+from orange_plan.bench.gridref import grid_graph
 from orange_plan.context import load_context
 from orange_plan.physics.pathcost import path_energy
-from orange_plan.planning.gridref import grid_graph
 from orange_plan.planning.reach import prepare_reach, query_goals
 
 GRID_M = 2.0

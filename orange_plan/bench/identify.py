@@ -28,8 +28,19 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.context import load_context
+from orange_plan.identify.calibrate import Calibrator, model_with_terms, recording_state
 from orange_plan.identify.online import OnlineEstimator, stream
+from orange_plan.physics.pathcost import path_energy
+from orange_plan.physics.range import radial_probe_paths
+from orange_plan.planning.reach import reserve_J
+from orange_plan.scenario import Reserve
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import truth_from_dict
+from orange_plan.telemetry.importers import FORMATS
+from orange_plan.telemetry.recording import cumulative_J, motion_state, recording_from_frame
+from orange_plan.telemetry.replay import run_energy
 
 N_RAYS = 8
 
@@ -101,9 +112,6 @@ def accuracy_pct(d_pred: float, d_true: float) -> float:
 def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None):
     """The a priori route: out-and-back rays from home joined into one closed polyline, each
     ray cut at ``max_ray_m`` from home."""
-    from orange_plan.physics.range import radial_probe_paths
-    from orange_plan.sim.route import Route
-
     rays = radial_probe_paths(ctx.world, n_rays)
     if max_ray_m is not None:
         for r in rays:
@@ -117,8 +125,6 @@ def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None):
 
 def offline_range_m(ctx, route) -> float:
     """Generalised offline range (Eq. 11) with the path integral taken on ``route`` [m]."""
-    from orange_plan.physics.pathcost import path_energy
-
     speed = route.speed_mps[:-1]
     e = path_energy(ctx.model, ctx.world, route.xy_m, speed, ctx.duty_cycle, ctx.sensor_rate_Hz)
     length = float(np.sum(np.hypot(*np.diff(route.xy_m, axis=0).T)))
@@ -166,10 +172,6 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
 
     Returns (OnlineTrace, list of OnlineEstimate, SimResult, route).
     """
-    from orange_plan.sim.simulator import simulate
-    from orange_plan.telemetry.recording import motion_state, recording_from_frame
-    from orange_plan.telemetry.replay import run_energy
-
     route = bench_route(ctx)
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
                    to_depletion=True)
@@ -204,8 +206,6 @@ def online_run(ctx, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
 def online_benchmark(scenario_dir: str | Path, scenarios=None, seeds=(0, 1, 2),
                      progress=None) -> list[OnlineRow]:
     """Offline vs online range accuracy on simulated runs to depletion (module docstring)."""
-    from orange_plan.context import load_context
-
     names = list(BENCH_TRUTHS) if scenarios is None else list(scenarios)
     rows = []
     for name in names:
@@ -307,9 +307,6 @@ def count_runs(data_dir: str | Path, datasets) -> int:
 
 def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
     """Import and check every run matching ``pattern`` under ``data_dir`` (sorted by path)."""
-    from orange_plan.telemetry.importers import FORMATS
-    from orange_plan.telemetry.recording import recording_from_frame
-
     paths = sorted(Path(data_dir).glob(pattern))
     return [recording_from_frame(FORMATS[fmt](p), f"{p.parent.name}/{p.name}") for p in paths]
 
@@ -317,8 +314,6 @@ def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
 def whole_run_prediction(model, rec, ctx, settings: dict):
     """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) and its
     predictive standard deviation (``telemetry.replay.RunEnergy``)."""
-    from orange_plan.identify.calibrate import recording_state
-    from orange_plan.telemetry.replay import run_energy
 
     state = recording_state(rec, ctx, settings.get("grade_window_m"),
                             settings.get("yaw_rate_column"))
@@ -333,8 +328,6 @@ def whole_run_energy_J(model, rec, ctx, settings: dict) -> float:
 def reserve_exceeded(recorded_J, predicted_J, sd_J, confidence: float) -> np.ndarray:
     """True where a recorded energy exceeds predicted + the ``confidence`` reserve, the
     reserve sized exactly as the planner sizes it (``planning.reach.reserve_J``)."""
-    from orange_plan.planning.reach import reserve_J
-    from orange_plan.scenario import Reserve
 
     sd = np.asarray(sd_J, float)
     reserve = reserve_J(Reserve("confidence", confidence), 0.0, sd**2)
@@ -363,9 +356,6 @@ def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
     so far plus the current coefficients' prediction for the rest of the motion (the route
     ahead is known, as in a planned mission). Errors are (predicted - recorded) / recorded.
     """
-    from orange_plan.identify.calibrate import recording_state
-    from orange_plan.telemetry.recording import cumulative_J
-
     state = recording_state(rec, ctx, settings.get("grade_window_m"),
                             settings.get("yaw_rate_column"))
     t, power = rec.t_s, rec.frame["power_W"].to_numpy(float)
@@ -388,8 +378,6 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
                           progress=None) -> list[CalibrationRow]:
     """Two-fold run-level hold-out: fit on every other run (sorted by name), predict the
     whole-run energy of the others, then swap. Errors are (predicted - recorded) / recorded."""
-    from orange_plan.context import load_context
-    from orange_plan.identify.calibrate import Calibrator, model_with_terms
 
     rows = []
     for name in datasets or CALIBRATION_CASES:
