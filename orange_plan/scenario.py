@@ -12,7 +12,7 @@ from typing import Any
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
 from orange_plan.paths import require_file
 from orange_plan.physics.battery import Battery, Losses
-from orange_plan.physics.terms import EXTRA_TERM_IDS
+from orange_plan.physics.terms import EXTRA_TERM_IDS, model_coefficient_names
 from orange_plan.physics.wind import wind_vector_mps
 
 ROBOT_KINDS = ("ground", "aerial", "marine")
@@ -97,7 +97,6 @@ OTHER_KEYS = {
 }
 RESERVE_KINDS = {"confidence": "in (0, 1)", "fraction": "in [0, 1)", "energy_J": ">= 0"}
 MODEL_EXTRA_TERMS = EXTRA_TERM_IDS
-DEFAULT_REGEN_EFFICIENCY = 0.5
 """Default recovery efficiency for a listed ``regen`` term without a value [-]."""
 DEFAULT_PRIOR_RELATIVE_STDERR = 0.10
 """A priori (uncalibrated) standard error of each coefficient, relative to its value [-]."""
@@ -377,8 +376,6 @@ def _reserve(value, where: str) -> Reserve:
 def _model_spec(table, where: str) -> ModelSpec:
     if not isinstance(table, Mapping):
         raise ScenarioError(f"{where}: [model] must be a table")
-    from orange_plan.physics.builder import model_coefficient_names  # avoid an import cycle
-
     terms = table.get("terms", [])
     if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
         raise ScenarioError(f"{where}: model.terms must be a list of term ids, got {terms!r}")

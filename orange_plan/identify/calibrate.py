@@ -54,10 +54,9 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from orange_plan.errors import InputError
-from orange_plan.physics.builder import reference_coefficients
+from orange_plan.model_builder import model_with_terms
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
-from orange_plan.physics.terms import TERMS, surface_rolling_term
 
 WHEELS_UP_COLUMN = "wheels_up"
 
@@ -220,43 +219,6 @@ def _no_traction(state: MotionState, mask: np.ndarray, n: int) -> MotionState:
         arr[mask] = value
         changes[name] = arr
     return state.with_(**changes)
-
-
-def model_with_terms(ctx, terms: Sequence[str] | None, surface_names=None) -> EnergyModel:
-    """The context's model, or one with exactly ``terms`` (vocabulary ids, SPEC §6).
-
-    Coefficients keep the context model's values and variances; new ones start at the
-    scenario's reference values with ``prior_relative_stderr`` (zero value: no prior).
-    """
-    if terms is None:
-        return ctx.model
-    names = tuple(surface_names or ctx.world.map.surface_names)
-    built = []
-    for t in terms:
-        if t == "surface_rolling":
-            if not names:
-                raise InputError("term 'surface_rolling' needs surfaces (map or surface column)")
-            built.append(surface_rolling_term(names))
-        elif t in TERMS:
-            built.append(TERMS[t])
-        else:
-            raise InputError(f"unknown term '{t}'; known: {', '.join([*TERMS, 'surface_rolling'])}")
-    defaults = reference_coefficients(ctx.scenario)
-    have = ctx.model.as_dict()
-    theta = {}
-    for term in built:
-        for name in term.coefficients:
-            if name in have:
-                theta[name] = have[name]
-            else:
-                theta[name] = defaults["rolling_kg"] if name.startswith("rolling_kg_") else defaults[name]
-    model = ctx.model.with_terms(built, theta)
-    rel = ctx.scenario.model.prior_relative_stderr
-    cov = model.cov.copy()
-    for i, name in enumerate(model.names):
-        if name not in have:
-            cov[i, i] = (rel * theta[name]) ** 2
-    return model.with_theta({}, cov)
 
 
 class Calibrator:

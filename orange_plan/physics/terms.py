@@ -30,6 +30,8 @@ from orange_plan.physics.state import MotionState
 
 G_MPS2 = 9.81
 """Standard gravity used by the reference model [m/s^2] (SPEC §7)."""
+DEFAULT_REGEN_EFFICIENCY = 0.5
+"""A priori ``regen_efficiency``: fraction of braking/descending energy recovered [-]."""
 
 Group = Literal["power", "force", "rate", "regen"]
 
@@ -249,9 +251,16 @@ TERMS: dict[str, Term] = {
 REFERENCE_TERM_IDS = ("ancillary", "sensor_rate", "hover", "rolling", "aero_drag", "grade",
                       "turning")
 """SPEC §7's reference model: switched on by the scenario's physical values
-(``builder.reference_term_ids``)."""
+(``model_builder.reference_term_ids``)."""
 EXTRA_TERM_IDS = (*(t for t in TERMS if t not in REFERENCE_TERM_IDS), "surface_rolling")
 """Terms a scenario adds through ``[model] terms``: every other vocabulary term."""
+
+
+def model_coefficient_names(extra_terms) -> set[str]:
+    """Coefficient names a scenario's [model] table may set: the reference terms' and those
+    of ``extra_terms`` (per-surface ones go by their ``rolling_kg_`` prefix)."""
+    return {c for t in (*REFERENCE_TERM_IDS, *extra_terms) if t in TERMS
+            for c in TERMS[t].coefficients}
 
 
 def default_ground_rolling_feature(state: MotionState):

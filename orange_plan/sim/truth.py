@@ -33,9 +33,10 @@ maths, the map) comes from the scenario. Every table and key is optional::
 
 Notes
 -----
-Payload scales the mass-proportional coefficients (``physics.builder.MASS_COEFFICIENTS``:
-rolling, surface rolling, grade, inertia, rolling torque) by ``(m + extra) / m`` and, for a robot with a hover term, scales the hover
-power by ``((m + extra) / m) ** 1.5`` (momentum theory: induced power grows as weight^1.5).
+Payload scales the mass-proportional coefficients (``model_builder.LUMPED`` rows marked
+``mass``: rolling, surface rolling, grade, inertia, rolling torque) by ``(m + extra) / m``
+and, for a robot with a hover term, scales the hover power by ``((m + extra) / m) ** 1.5``
+(momentum theory: induced power grows as weight^1.5).
 """
 
 from __future__ import annotations
