@@ -20,7 +20,8 @@ from orange_plan.physics.terms import TERMS
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import Truth
-from orange_plan.telemetry.recording import motion_state, recording_from_frame
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 LOOP = np.array([[1.0, 1.0], [18.0, 1.0], [18.0, 4.0], [1.0, 4.0], [1.0, 1.0]])
 
@@ -33,7 +34,7 @@ def ctx(tmp_path):
 def run(ctx, truth, seed=0):
     sim = simulate(ctx, Route(LOOP, np.full(5, 0.8), "loop"), truth, seed=seed, to_depletion=True)
     rec = recording_from_frame(sim.frame, "sim")
-    return sim, rec, motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    return sim, rec, recording_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
 
 
 def test_online_range_tracks_a_truth_the_offline_estimate_misses(ctx):

@@ -16,7 +16,8 @@ from orange_plan.errors import InputError
 from orange_plan.sim.route import Route, load_route
 from orange_plan.sim.simulator import simulate, truth_model, with_payload
 from orange_plan.sim.truth import Truth, Wind, load_truth, truth_from_dict
-from orange_plan.telemetry.recording import motion_state, recording_from_frame
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 # A loop in the 20 m x 10 m test yard: default ground (x < 10) and grass (x > 10), clear of
 # the box obstacle at x 4..6, y 7..9.
@@ -114,7 +115,7 @@ def test_power_is_the_models_own_power_on_the_recorded_motion(ctx):
     """No truth effects: the recording replays exactly through EnergyModel.power_W."""
     sim = simulate(ctx, route(), seed=1)
     rec = recording_from_frame(sim.frame, "sim")
-    state = motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    state = recording_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
     np.testing.assert_allclose(ctx.model.power_W(state), sim.frame["power_W"], atol=1e-9)
     assert sim.energy_J == pytest.approx(sim.frame["power_W"].sum() * 0.1)
     assert set(sim.frame["surface"]) == {"grass", "default"}

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.context import load_context
-from orange_plan.identify.calibrate import Calibrator, recording_state
+from orange_plan.identify.calibrate import Calibrator
 from orange_plan.identify.online import OnlineEstimator, stream
 from orange_plan.model_builder import model_with_terms
 from orange_plan.physics.pathcost import path_energy
@@ -40,8 +40,9 @@ from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import truth_from_dict
 from orange_plan.telemetry.importers import FORMATS
-from orange_plan.telemetry.recording import cumulative_J, motion_state, recording_from_frame
+from orange_plan.telemetry.recording import cumulative_J, recording_from_frame
 from orange_plan.telemetry.replay import run_energy
+from orange_plan.telemetry.state import recording_state
 
 N_RAYS = 8
 
@@ -177,7 +178,7 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
                    to_depletion=True)
     rec = recording_from_frame(sim.frame, f"{ctx.scenario.name} seed {seed}")
-    state = motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz)
     est = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J, memory_s, window_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s,
                      until_s=until_fraction * sim.duration_s)
@@ -316,8 +317,9 @@ def whole_run_prediction(model, rec, ctx, settings: dict):
     """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) and its
     predictive standard deviation (``telemetry.replay.RunEnergy``)."""
 
-    state = recording_state(rec, ctx, settings.get("grade_window_m"),
-                            settings.get("yaw_rate_column"))
+    state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz,
+                            grade_window_m=settings.get("grade_window_m"),
+                            yaw_rate_column=settings.get("yaw_rate_column"))
     return run_energy(rec, model, state)
 
 
@@ -357,8 +359,9 @@ def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
     so far plus the current coefficients' prediction for the rest of the motion (the route
     ahead is known, as in a planned mission). Errors are (predicted - recorded) / recorded.
     """
-    state = recording_state(rec, ctx, settings.get("grade_window_m"),
-                            settings.get("yaw_rate_column"))
+    state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz,
+                            grade_window_m=settings.get("grade_window_m"),
+                            yaw_rate_column=settings.get("yaw_rate_column"))
     t, power = rec.t_s, rec.frame["power_W"].to_numpy(float)
     duration = float(t[-1] - t[0])
     est = OnlineEstimator(model, ctx.scenario.battery.usable_J, memory_s, memory_s)

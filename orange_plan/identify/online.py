@@ -249,12 +249,5 @@ def stream(estimator: OnlineEstimator, state: MotionState, power_W, t_s, batch_s
         if b <= a:
             continue
         idx = slice(int(a), int(b))
-        out.append(estimator.update(_slice(state, idx, t.size), y[idx], dt[idx]))
+        out.append(estimator.update(state.take(idx, t.size), y[idx], dt[idx]))
     return out
-
-
-def _slice(state: MotionState, idx: slice, n: int) -> MotionState:
-    from dataclasses import fields
-
-    return MotionState(**{f.name: np.broadcast_to(np.asarray(getattr(state, f.name)), (n,))[idx]
-                          for f in fields(MotionState)})

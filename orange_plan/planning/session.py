@@ -54,7 +54,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -65,12 +65,12 @@ from shapely.geometry import MultiPolygon, Polygon, shape
 from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
 from orange_plan.physics.pathcost import path_energy
-from orange_plan.physics.state import MotionState
 from orange_plan.planning.coverage import footprint
 from orange_plan.planning.paths import path_gradient
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import prepare_reach, query_goals, reserve_J
-from orange_plan.telemetry.recording import motion_state, recording_from_frame
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 ACTIONS = ("continue", "replan", "return_home")
 DEPARTURE_Z = 3.0
@@ -284,8 +284,8 @@ class MissionSession:
         if len(history) >= 2:
             context = history.tail(len(frame) + CONTEXT_ROWS)
             rec = recording_from_frame(context, "samples")
-            state = motion_state(rec, self.ctx.world, sensor_rate_Hz=self.ctx.sensor_rate_Hz)
-            state = _tail(state, len(frame), len(rec.frame))
+            state = recording_state(rec, self.ctx.world, self.ctx.sensor_rate_Hz)
+            state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
             state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
             power = frame["power_W"].to_numpy(float)
             self._estimator.update(state, power, dt)
@@ -639,13 +639,6 @@ def _polygon(value, what: str):
 
         raise InputError(f"map update: {what} is invalid: {explain_validity(geom)}")
     return geom
-
-
-def _tail(state: MotionState, n: int, total: int) -> MotionState:
-    """The last ``n`` samples of a per-sample MotionState of ``total`` samples."""
-    return MotionState(**{f.name: np.broadcast_to(np.asarray(getattr(state, f.name)),
-                                                   (total,))[total - n:]
-                          for f in fields(MotionState)})
 
 
 def _distance_to_segments(p, a, b) -> np.ndarray:
