@@ -194,7 +194,7 @@ class MissionSession:
     def online_model(self):
         """The scenario model with the estimator's coefficients and covariance."""
         est = self._estimator
-        return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta)), est.cov)
+        return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta_)), est.cov_)
 
     @property
     def world_now(self):
