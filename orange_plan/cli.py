@@ -75,6 +75,31 @@ SCENARIO_HELP = ("Scenario TOML file (robot, losses, battery, ancillary, mission
 RECORDING_HELP = ("Recording file(s), .csv or .parquet: t_s, power_W (or voltage_V and "
                   "current_A), x_m and y_m (or v_mps).")
 ScenarioArg = Annotated[Path, typer.Argument(help=SCENARIO_HELP)]
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks (timings are medians).")
+app.add_typer(bench_app, name="bench")
+"""The ``bench`` command group; the command modules named ``bench*`` register on it."""
+
+
+# --- argument helpers shared by several commands ---
+
+
+def parse_xy(text: str, option: str) -> tuple[float, float]:
+    """``"X,Y"`` -> (x, y) in metres; InputError naming the option otherwise."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        x, y = (float(p) for p in parts)
+    except ValueError:
+        raise InputError(f"{option} must be X,Y in metres (e.g. 120,45.5), got {text!r}") from None
+    if not all(map(lambda v: v == v and abs(v) != float("inf"), (x, y))):
+        raise InputError(f"{option} must be finite, got {text!r}")
+    return x, y
+
+
+def default_scenario() -> Path:
+    """The hilly example shipped with the package (scenarios/kiwibot_campus.toml)."""
+    from orange_plan.examples import examples_dir
+
+    return examples_dir("scenarios", "a SCENARIO argument") / "kiwibot_campus.toml"
 
 
 class CommandFailed(SystemExit):

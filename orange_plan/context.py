@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from orange_plan.physics.builder import build_model
+from orange_plan.model_builder import build_model
 from orange_plan.physics.model import EnergyModel
 from orange_plan.scenario import Scenario, load_scenario
 from orange_plan.world.terrain import World

@@ -12,18 +12,23 @@ from typing import Any
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
 from orange_plan.paths import require_file
 from orange_plan.physics.battery import Battery, Losses
-from orange_plan.physics.terms import EXTRA_TERM_IDS
-from orange_plan.physics.wind import wind_vector_mps
+from orange_plan.physics.terms import EXTRA_TERM_IDS, model_coefficient_names
+from orange_plan.physics.wind import wind_xy_mps
 
 ROBOT_KINDS = ("ground", "aerial", "marine")
 REQUIRED = object()
+"""Schema default of a key that must be given."""
+ABSENT = object()
+"""Schema default of an optional key left out of the checked values when not given."""
+BOOLEAN = object()
+"""Schema check of a key that must be true or false."""
 
 
-def _positive(v):
+def positive(v):
     return None if v > 0 else "must be > 0"
 
 
-def _non_negative(v):
+def non_negative(v):
     return None if v >= 0 else "must be >= 0"
 
 
@@ -39,7 +44,7 @@ def _duty(v):
     return None if 0 < v <= 1 else "must be in (0, 1] (fraction of mission time spent moving)"
 
 
-def _any(v):
+def any_number(v):
     return None
 
 
@@ -50,14 +55,14 @@ def _celsius(v):
 # section -> key -> (default or REQUIRED, check). A check returns None or the complaint.
 NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
     "robot": {
-        "mass_kg": (REQUIRED, _positive),
+        "mass_kg": (REQUIRED, positive),
         "crr": (REQUIRED, _unit_interval),
-        "drag_coeff_kg_per_m": (0.0, _non_negative),
-        "v_min_mps": (0.1, _positive),
-        "v_max_mps": (REQUIRED, _positive),
-        "accel_max_mps2": (0.5, _positive),
-        "hover_W": (0.0, _non_negative),
-        "turn_coeff_W_s_per_rad": (0.0, _non_negative),
+        "drag_coeff_kg_per_m": (0.0, non_negative),
+        "v_min_mps": (0.1, positive),
+        "v_max_mps": (REQUIRED, positive),
+        "accel_max_mps2": (0.5, positive),
+        "hover_W": (0.0, non_negative),
+        "turn_coeff_W_s_per_rad": (0.0, non_negative),
     },
     "losses": {
         "battery": (REQUIRED, _fraction_open),
@@ -66,27 +71,27 @@ NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
         "ancillary": (REQUIRED, _fraction_open),
     },
     "battery": {
-        "rated_energy_Wh": (REQUIRED, _positive),
-        "cycles": (0.0, _non_negative),
-        "age_days": (0.0, _non_negative),
-        "k1_per_cycle": (0.0, _non_negative),
-        "k2_per_day": (0.0, _non_negative),
+        "rated_energy_Wh": (REQUIRED, positive),
+        "cycles": (0.0, non_negative),
+        "age_days": (0.0, non_negative),
+        "k1_per_cycle": (0.0, non_negative),
+        "k2_per_day": (0.0, non_negative),
     },
     "ancillary": {
-        "s0_W": (0.0, _non_negative),
-        "s1_W_per_Hz": (0.0, _non_negative),
-        "sensor_rate_Hz": (0.0, _non_negative),
-        "compute_W": (0.0, _non_negative),
-        "comm_W": (0.0, _non_negative),
+        "s0_W": (0.0, non_negative),
+        "s1_W_per_Hz": (0.0, non_negative),
+        "sensor_rate_Hz": (0.0, non_negative),
+        "compute_W": (0.0, non_negative),
+        "comm_W": (0.0, non_negative),
     },
     "mission": {
         "duty_cycle": (REQUIRED, _duty),
-        "sensor_radius_m": (1.0, _positive),
-        "time_limit_s": (None, _positive),
+        "sensor_radius_m": (1.0, positive),
+        "time_limit_s": (None, positive),
     },
     "environment": {
-        "wind_speed_mps": (0.0, _non_negative),
-        "wind_from_deg": (0.0, _any),
+        "wind_speed_mps": (0.0, non_negative),
+        "wind_from_deg": (0.0, any_number),
         "ambient_C": (20.0, _celsius),
     },
 }
@@ -97,8 +102,6 @@ OTHER_KEYS = {
 }
 RESERVE_KINDS = {"confidence": "in (0, 1)", "fraction": "in [0, 1)", "energy_J": ">= 0"}
 MODEL_EXTRA_TERMS = EXTRA_TERM_IDS
-DEFAULT_REGEN_EFFICIENCY = 0.5
-"""Default recovery efficiency for a listed ``regen`` term without a value [-]."""
 DEFAULT_PRIOR_RELATIVE_STDERR = 0.10
 """A priori (uncalibrated) standard error of each coefficient, relative to its value [-]."""
 DEFAULT_DISCREPANCY_REL_SD = 0.25
@@ -170,8 +173,7 @@ class Environment:
     @property
     def wind_xy_mps(self) -> tuple[float, float]:
         """Wind vector (x east, y north) from the meteorological direction [m/s] (SPEC §7)."""
-        wx, wy = wind_vector_mps(self.wind_speed_mps, self.wind_from_deg)
-        return float(wx), float(wy)
+        return wind_xy_mps(self.wind_speed_mps, self.wind_from_deg)
 
 
 @dataclass(frozen=True)
@@ -303,48 +305,59 @@ def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:
     )
 
 
-def _table(data, section: str, where: str) -> Mapping[str, Any]:
-    table = data.get(section, {})
-    if not isinstance(table, Mapping):
-        raise ScenarioError(f"{where}: [{section}] must be a table, got {table!r}")
-    return table
-
-
-def _check_keys(table: Mapping[str, Any], allowed, section: str, where: str) -> None:
+def _check_keys(table: Mapping[str, Any], allowed, section: str, where: str,
+                error: type[InputError] = ScenarioError) -> None:
     for key in table:
         if key not in allowed:
             dotted = f"{section}.{key}" if section else key
-            raise ScenarioError(
-                f"{where}: unknown key '{dotted}'" + close_match_hint(key, allowed)
-            )
+            raise error(f"{where}: unknown key '{dotted}'" + close_match_hint(key, allowed))
 
 
-def _number(value, dotted: str, where: str) -> float:
+def _number(value, dotted: str, where: str, error: type[InputError] = ScenarioError) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScenarioError(f"{where}: {dotted} must be a number, got {value!r}")
+        raise error(f"{where}: {dotted} must be a number, got {value!r}")
     if not math.isfinite(value):
-        raise ScenarioError(f"{where}: {dotted} must be finite, got {value!r}")
+        raise error(f"{where}: {dotted} must be finite, got {value!r}")
     return float(value)
 
 
-def _numbers(data, section: str, where: str) -> dict[str, Any]:
-    schema = NUMBER_SCHEMA[section]
-    table = _table(data, section, where)
-    _check_keys(table, set(schema) | OTHER_KEYS.get(section, set()), section, where)
+def check_table(table, schema: Mapping[str, tuple[Any, Callable]], section: str, where: str,
+                error: type[InputError] = ScenarioError, other_keys=()) -> dict[str, Any]:
+    """Validate one TOML table against ``schema``: key -> (default, check).
+
+    The default is a value, ``REQUIRED`` or ``ABSENT`` (not given: left out of the result);
+    a check returns None or the complaint (``BOOLEAN``: the value must be true or false).
+    Unknown keys (other than ``other_keys``) are refused with a close-match hint. Used by
+    scenario files and by the simulator's truth files.
+    """
+    if not isinstance(table, Mapping):
+        raise error(f"{where}: [{section}] must be a table, got {table!r}")
+    _check_keys(table, set(schema) | set(other_keys), section, where, error)
     out = {}
     for key, (default, check) in schema.items():
         dotted = f"{section}.{key}"
         if key not in table:
             if default is REQUIRED:
-                raise ScenarioError(f"{where}: missing key '{dotted}'")
-            out[key] = default
+                raise error(f"{where}: missing key '{dotted}'")
+            if default is not ABSENT:
+                out[key] = default
             continue
-        value = _number(table[key], dotted, where)
+        if check is BOOLEAN:
+            if not isinstance(table[key], bool):
+                raise error(f"{where}: {dotted} must be true or false, got {table[key]!r}")
+            out[key] = table[key]
+            continue
+        value = _number(table[key], dotted, where, error)
         problem = check(value)
         if problem:
-            raise ScenarioError(f"{where}: {dotted} = {value:g} {problem}")
+            raise error(f"{where}: {dotted} = {value:g} {problem}")
         out[key] = value
     return out
+
+
+def _numbers(data, section: str, where: str) -> dict[str, Any]:
+    return check_table(data.get(section, {}), NUMBER_SCHEMA[section], section, where,
+                       other_keys=OTHER_KEYS.get(section, set()))
 
 
 def _home(value, where: str):
@@ -377,8 +390,6 @@ def _reserve(value, where: str) -> Reserve:
 def _model_spec(table, where: str) -> ModelSpec:
     if not isinstance(table, Mapping):
         raise ScenarioError(f"{where}: [model] must be a table")
-    from orange_plan.physics.builder import model_coefficient_names  # avoid an import cycle
-
     terms = table.get("terms", [])
     if not isinstance(terms, list) or not all(isinstance(t, str) for t in terms):
         raise ScenarioError(f"{where}: model.terms must be a list of term ids, got {terms!r}")

@@ -21,8 +21,10 @@ def box(x0, y0, x1, y1):
 
 def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surfaces=(),
                 hill=None, ramp=0.0, home=(2.0, 2.0), rated_energy_Wh=1.0,
-                reserve=None, turn=0.0, drag=0.05, name="world", time_limit_s=None) -> Path:
-    """Write map + DEM + scenario; ``hill`` = (cx, cy, height_m, sigma_m), ``ramp`` = dz/dx."""
+                reserve=None, turn=0.0, drag=0.05, name="world", time_limit_s=None,
+                wind=(0.0, 0.0), terms=()) -> Path:
+    """Write map + DEM + scenario; ``hill`` = (cx, cy, height_m, sigma_m), ``ramp`` = dz/dx,
+    ``wind`` = (speed_mps, from_deg), ``terms`` = extra model terms."""
     features = [
         {"type": "Feature", "properties": {"kind": "boundary"},
          "geometry": {"type": "Polygon", "coordinates": box(0, 0, width_m, height_m)}},
@@ -54,8 +56,10 @@ def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surface
                       "compute_W": 2.0, "comm_W": 1.0},
         "mission": {"duty_cycle": 0.9, "sensor_radius_m": 1.0,
                     "reserve": reserve or {"fraction": 0.1}},
-        "environment": {"wind_speed_mps": 0.0, "wind_from_deg": 0.0},
+        "environment": {"wind_speed_mps": wind[0], "wind_from_deg": wind[1]},
     }
+    if terms:
+        scenario["model"] = {"terms": list(terms)}
     if time_limit_s is not None:
         scenario["mission"]["time_limit_s"] = time_limit_s
     path = folder / f"{name}.toml"

@@ -76,7 +76,7 @@ def test_progress_bar_counts_items(monkeypatch):
 
 
 def test_calibration_progress_counts_every_held_out_run(tmp_path):
-    from orange_plan.identify.bench import count_runs
+    from orange_plan.bench.identify import count_runs
 
     for name in ("ASPHALT/pro_01.csv", "ASPHALT/pro_02.csv", "SNOW/pro_03.csv", "SNOW/imu_03.csv"):
         (tmp_path / "borealtc" / name).parent.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""planning.bench / ``orange-plan bench reach`` and the BIT* and grid-reference pieces it uses
+"""bench.reach / ``orange-plan bench reach`` and the BIT* and grid-reference pieces it uses
 (small world, few vertices: checks structure and consistency, never timings)."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 from conftest import run_cli
 from planning_worlds import write_world
 
+from orange_plan.bench.gridref import grid_graph
 from orange_plan.context import load_context
-from orange_plan.planning.gridref import grid_graph
 from orange_plan.planning.paths import bitstar_path, evaluate_path, refined_path, roadmap_path
 from orange_plan.planning.reach import cost_contexts
 from orange_plan.planning.roadmap import build_roadmap

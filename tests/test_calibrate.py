@@ -15,10 +15,10 @@ from orange_plan.errors import InputError
 from orange_plan.identify.calibrate import (
     Calibrator,
     inflation_factor,
-    model_with_terms,
     recording_samples,
 )
-from orange_plan.identify.scenario_out import physical_values, write_calibrated_scenario
+from orange_plan.identify.scenario_out import write_calibrated_scenario
+from orange_plan.model_builder import model_with_terms, physical_values
 from orange_plan.physics.state import MotionState
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
@@ -218,7 +218,7 @@ def test_no_recordings_is_refused(ctx):
 
 @pytest.mark.skipif(not (DATA / "borealtc").is_dir(), reason="real data not present in ../shared/data")
 def test_real_husky_runs_calibrate_better_than_a_priori():
-    from orange_plan.identify.bench import CALIBRATION_CASES, load_runs, whole_run_energy_J
+    from orange_plan.bench.identify import CALIBRATION_CASES, load_runs, whole_run_energy_J
 
     repo = Path(__file__).resolve().parents[1]
     ctx = load_context(repo / "scenarios" / "husky_a200.toml")
@@ -238,7 +238,7 @@ def test_real_husky_runs_calibrate_better_than_a_priori():
 
 @pytest.mark.skipif(not (DATA / "tum_bmw_i3").is_dir(), reason="real data not present in ../shared/data")
 def test_real_bmw_trips_calibrate_physically():
-    from orange_plan.identify.bench import CALIBRATION_CASES, load_runs, whole_run_energy_J
+    from orange_plan.bench.identify import CALIBRATION_CASES, load_runs, whole_run_energy_J
 
     repo = Path(__file__).resolve().parents[1]
     ctx = load_context(repo / "scenarios" / "bmw_i3.toml")

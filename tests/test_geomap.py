@@ -81,3 +81,12 @@ def test_not_json_and_not_a_collection(tmp_path):
         load_map(bad)
     with pytest.raises(MapError, match="map file not found"):
         load_map(tmp_path / "absent.geojson")
+
+
+def test_optional_origin_member_is_accepted_and_checked(tmp_path):
+    """SPEC §1: the WGS84 point at x = y = 0, a foreign member of the FeatureCollection."""
+    m = load_map(write_map(tmp_path, origin={"lat_deg": 48.137, "lon_deg": 11.575, "alt_m": 520.0}))
+    assert (m.origin.lat_deg, m.origin.lon_deg, m.origin.alt_m) == (48.137, 11.575, 520.0)
+    assert load_map(write_map(tmp_path, name="plain.geojson")).origin is None
+    with pytest.raises(MapError, match=r"origin has unknown member 'lat' \(did you mean"):
+        load_map(write_map(tmp_path, name="bad.geojson", origin={"lat": 1.0}))

@@ -1,10 +1,10 @@
-"""identify.bench: the reserve check of the calibration and online benchmarks, by hand."""
+"""bench.identify: the reserve check of the calibration and online benchmarks, by hand."""
 
 from __future__ import annotations
 
 import pytest
 
-from orange_plan.identify.bench import coverage_summary, reserve_exceeded
+from orange_plan.bench.identify import coverage_summary, reserve_exceeded
 
 
 def test_reserve_exceeded_uses_the_planners_confidence_reserve():

@@ -21,7 +21,8 @@ from logbuilders import (
 
 from orange_plan.errors import RecordingError
 from orange_plan.telemetry.importers import FORMATS, guess_format, read_log
-from orange_plan.telemetry.recording import motion_state, recording_from_frame
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -44,7 +45,7 @@ def check_drive(frame: pd.DataFrame, n_battery: int = 21):
     assert np.allclose(frame["v_mps"], SPEED_EAST_MPS)
     rec = recording_from_frame(frame)
     assert rec.energy_J == pytest.approx(VOLTAGE_V * CURRENT_A * DURATION_S)
-    state = motion_state(rec)
+    state = recording_state(rec)
     slope = CLIMB_MPS / SPEED_EAST_MPS
     assert np.allclose(state.sin_t, slope / np.hypot(1.0, slope), atol=1e-3)
     assert np.allclose(state.dir_x, 1.0)
@@ -226,7 +227,8 @@ def test_tum_bmw_i3_hvac_and_acceleration_from_speed(tmp_path):
     rec = recording_from_frame(frame)
     accel = rec.frame["accel_mps2"].to_numpy()
     assert accel[8] == pytest.approx(5.0) and accel[40] == pytest.approx(0.0)  # from v_mps
-    state = motion_state(rec)
-    assert np.allclose(state.hvac_W, 600.0)
-    assert state.heater_request_W[30] == 0.0 and state.heater_request_W[31] == 1000.0  # [W]
-    assert state.elapsed_s[0] == 0.0 and state.elapsed_s[-1] == pytest.approx(5.9)
+    state = recording_state(rec)
+    assert np.allclose(state.channel("hvac_W"), 600.0)
+    heater, elapsed = state.channel("heater_request_W"), state.channel("elapsed_s")
+    assert heater[30] == 0.0 and heater[31] == 1000.0  # [W]
+    assert elapsed[0] == 0.0 and elapsed[-1] == pytest.approx(5.9)

@@ -61,14 +61,14 @@ def test_numpy_and_casadi_agree(sym, seed):
     turn = rng.uniform(0, np.pi, n)
     duty = 0.7
 
-    num_state = MotionState(**fields)
+    num_state = MotionState.from_values(fields)
     e_num = np.asarray(model.segment_energy(num_state, length, duty, turn).total_J)
     p_num = np.asarray(model.power_W(num_state))
     force = model.traction_force_N(num_state)
     assert (force > 0).any() and (force < 0).any()  # both sides of max(0, F) and regen used
 
     v = sym.sym("v", n)
-    sym_state = MotionState(**{**fields, "speed_mps": v})
+    sym_state = MotionState.from_values({**fields, "speed_mps": v})
     e_sym = model.segment_energy(sym_state, length, duty, turn).total_J
     p_sym = model.power_W(sym_state)
     assert isinstance(e_sym, sym) and isinstance(p_sym, sym)
@@ -81,7 +81,7 @@ def test_numpy_and_casadi_agree(sym, seed):
 def test_casadi_symbolic_theta_matches_numeric():
     rng = np.random.default_rng(7)
     model = full_model()
-    state = MotionState(**random_state(rng, 15, rng.uniform(0.2, 3, 15)))
+    state = MotionState.from_values(random_state(rng, 15, rng.uniform(0.2, 3, 15)))
     th = ca.MX.sym("theta", len(model.names))
     f = ca.Function("p", [th], [model.power_W(state, theta=th)])
     np.testing.assert_allclose(np.asarray(f(model.theta)).ravel(), model.power_W(state),
@@ -116,7 +116,7 @@ def test_jacobians_match_finite_differences():
     rng = np.random.default_rng(3)
     model = full_model()
     n = 30
-    state = MotionState(**random_state(rng, n, rng.uniform(0.3, 4.0, n)))
+    state = MotionState.from_values(random_state(rng, n, rng.uniform(0.3, 4.0, n)))
     length = rng.uniform(0.5, 3.0, n)
     turn = rng.uniform(0, 2, n)
     jac = model.segment_energy_jacobian(state, length, 0.8, turn)
@@ -137,7 +137,7 @@ def test_jacobian_times_theta_is_energy_without_regen():
     terms = [t for t in full_model().terms if t.id != "regen"]
     theta = {k: v for k, v in FULL_THETA.items() if k != "regen_efficiency"}
     model = EnergyModel(terms, theta, omega=OMEGA)
-    state = MotionState(**random_state(rng, 25, rng.uniform(0.3, 4.0, 25)))
+    state = MotionState.from_values(random_state(rng, 25, rng.uniform(0.3, 4.0, 25)))
     e = model.segment_energy(state, 2.0, 0.9, 0.5).total_J
     np.testing.assert_allclose(model.segment_energy_jacobian(state, 2.0, 0.9, 0.5) @ model.theta, e)
     np.testing.assert_allclose(model.power_jacobian(state) @ model.theta, model.power_W(state))

@@ -10,9 +10,9 @@ from conftest import write_scenario
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from orange_plan.bench.identify import accuracy_pct, offline_range_m, online_run
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
-from orange_plan.identify.bench import accuracy_pct, offline_range_m, online_run
 from orange_plan.identify.online import OnlineEstimator, stream
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
@@ -20,7 +20,8 @@ from orange_plan.physics.terms import TERMS
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import Truth
-from orange_plan.telemetry.recording import motion_state, recording_from_frame
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 LOOP = np.array([[1.0, 1.0], [18.0, 1.0], [18.0, 4.0], [1.0, 4.0], [1.0, 1.0]])
 
@@ -33,7 +34,7 @@ def ctx(tmp_path):
 def run(ctx, truth, seed=0):
     sim = simulate(ctx, Route(LOOP, np.full(5, 0.8), "loop"), truth, seed=seed, to_depletion=True)
     rec = recording_from_frame(sim.frame, "sim")
-    return sim, rec, motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    return sim, rec, recording_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
 
 
 def test_online_range_tracks_a_truth_the_offline_estimate_misses(ctx):
@@ -129,7 +130,7 @@ def test_online_whole_run_energy_beats_the_offline_model_on_a_wrong_prior(ctx):
     """Whole-run energy (the real-recording comparison of `bench calibration`): with rolling
     60 % above the scenario's, the a-priori model under-predicts the run; measured energy so
     far plus the live coefficients on the motion ahead is within 2 % from 20 % of the run."""
-    from orange_plan.identify.bench import online_energy_errors, whole_run_energy_J
+    from orange_plan.bench.identify import online_energy_errors, whole_run_energy_J
 
     rolling = 1.6 * ctx.model.coefficient("rolling_kg")
     _, rec, _ = run(ctx, Truth(coefficients={"rolling_kg": rolling}, power_std_W=0.3))

@@ -13,13 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.context import load_context
-from orange_plan.physics.builder import build_model
+from orange_plan.model_builder import build_model
 from orange_plan.physics.range import (
     generalised_range,
     radial_probe_paths,
-    range_report,
     simplified_range,
 )
+from orange_plan.range_report import range_report
 from orange_plan.scenario import scenario_from_dict
 
 G = 9.81

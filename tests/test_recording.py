@@ -17,11 +17,11 @@ from orange_plan.errors import RecordingError
 from orange_plan.telemetry.recording import (
     integrate_J,
     load_recording,
-    motion_state,
     recording_from_frame,
     split_blocks,
     write_recording,
 )
+from orange_plan.telemetry.state import recording_state
 
 
 def straight(n=41, dt=0.1, speed=0.5, power=48.0) -> pd.DataFrame:
@@ -247,11 +247,11 @@ def test_integrate_any_channel():
 # --- motion state ---------------------------------------------------------------------------------
 
 
-def test_motion_state_grade_direction_and_defaults():
+def test_recording_state_grade_direction_and_defaults():
     t = np.arange(0, 200, 0.5)
     df = pd.DataFrame({"t_s": t, "power_W": 1.0, "x_m": 0.0 * t, "y_m": 1.0 * t,
                        "z_m": 0.05 * t})
-    state = motion_state(recording_from_frame(df))
+    state = recording_state(recording_from_frame(df))
     slope = 0.05
     assert np.allclose(state.sin_t, slope / math.hypot(1, slope), atol=1e-3)
     assert np.allclose(state.cos_t ** 2 + state.sin_t ** 2, 1.0)
@@ -260,15 +260,15 @@ def test_motion_state_grade_direction_and_defaults():
     state.validate()
 
 
-def test_motion_state_flat_without_elevation():
-    state = motion_state(recording_from_frame(straight()), sensor_rate_Hz=7.0)
+def test_recording_state_flat_without_elevation():
+    state = recording_state(recording_from_frame(straight()), sensor_rate_Hz=7.0)
     assert np.all(state.sin_t == 0.0) and np.all(state.cos_t == 1.0)
     assert np.all(state.sensor_rate_Hz == 7.0)
 
 
 def test_wind_columns_are_meteorological():
     df = straight(n=5).assign(wind_mps=4.0, wind_from_deg=90.0)  # from the east: blows west
-    state = motion_state(recording_from_frame(df))
+    state = recording_state(recording_from_frame(df))
     assert np.allclose(state.wind_x_mps, -4.0) and np.allclose(state.wind_y_mps, 0.0, atol=1e-12)
 
 
@@ -276,7 +276,7 @@ def test_world_gives_crr_and_surface_at_positions(tmp_path):
     ctx = load_context(write_scenario(tmp_path))  # yard: grass (crr 0.1) where x > 10
     t = np.arange(0, 17, 0.5)
     df = pd.DataFrame({"t_s": t, "power_W": 1.0, "x_m": 1.0 + t, "y_m": 5.0})
-    state = motion_state(recording_from_frame(df), ctx.world)
+    state = recording_state(recording_from_frame(df), ctx.world)
     on_grass = df["x_m"].to_numpy() > 10
     assert np.allclose(state.crr[on_grass], 0.1) and np.allclose(state.crr[~on_grass], 0.05)
     assert set(state.surface_code[on_grass]) == {0} and set(state.surface_code[~on_grass]) == {-1}
@@ -286,7 +286,7 @@ def test_surface_column_maps_through_the_world(tmp_path):
     ctx = load_context(write_scenario(tmp_path))
     df = pd.DataFrame({"t_s": [0, 1, 2.0], "power_W": 1.0, "v_mps": 1.0,
                        "surface": ["grass", "Grass", "ice"], "sensor_rate_Hz": 3.0})
-    state = motion_state(recording_from_frame(df), ctx.world, sensor_rate_Hz=9.0)
+    state = recording_state(recording_from_frame(df), ctx.world, sensor_rate_Hz=9.0)
     assert state.crr.tolist() == [0.1, 0.1, 0.05]
     assert state.surface_code.tolist() == [0, 0, -1]
     assert state.sensor_rate_Hz.tolist() == [3.0, 3.0, 3.0]
@@ -314,11 +314,11 @@ def test_cleaning_invariants(rows):
     assert rec.distance_m >= 0.0
 
 
-def test_motion_state_hvac_and_elapsed_time():
+def test_recording_state_hvac_and_elapsed_time():
     frame = pd.DataFrame({"t_s": [10.0, 11.0, 12.0], "power_W": 1.0, "v_mps": 2.0,
                           "hvac_W": [500.0, np.nan, 700.0]})
-    state = motion_state(recording_from_frame(frame))
-    np.testing.assert_allclose(state.elapsed_s, [0.0, 1.0, 2.0])   # time since the start
-    np.testing.assert_allclose(state.hvac_W, [500.0, 0.0, 700.0])  # a missing value counts 0
-    no_hvac = motion_state(recording_from_frame(frame.drop(columns="hvac_W")))
-    np.testing.assert_allclose(no_hvac.hvac_W, 0.0)
+    state = recording_state(recording_from_frame(frame))
+    np.testing.assert_allclose(state.channel("elapsed_s"), [0.0, 1.0, 2.0])  # since the start
+    np.testing.assert_allclose(state.channel("hvac_W"), [500.0, 0.0, 700.0])  # missing counts 0
+    no_hvac = recording_state(recording_from_frame(frame.drop(columns="hvac_W")))
+    np.testing.assert_allclose(no_hvac.channel("hvac_W"), 0.0)

@@ -9,11 +9,11 @@ import pytest
 from conftest import write_scenario
 
 from orange_plan.errors import InputError, ScenarioError
-from orange_plan.physics.builder import build_model, reference_term_ids
+from orange_plan.model_builder import build_model, reference_term_ids
+from orange_plan.physics.terms import DEFAULT_REGEN_EFFICIENCY
 from orange_plan.scenario import (
     DEFAULT_DISCREPANCY_REL_SD,
     DEFAULT_PRIOR_RELATIVE_STDERR,
-    DEFAULT_REGEN_EFFICIENCY,
     NUMBER_SCHEMA,
     REQUIRED,
     Reserve,

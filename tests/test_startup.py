@@ -28,7 +28,7 @@ def test_cli_and_every_command_module_import_no_heavy_library():
 
 def test_range_needs_neither_scipy_nor_casadi():
     code = ("from orange_plan.context import load_context\n"
-            "from orange_plan.physics.range import range_report\n"
+            "from orange_plan.range_report import range_report\n"
             "range_report(load_context('scenarios/rusti_v2_grass_2200mAh_v0952.toml'))")
     assert loaded_after(code) <= {"shapely"}
 

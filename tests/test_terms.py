@@ -203,7 +203,7 @@ BASE = {"crr": 0.05, "dir_x": 1.0}
 def test_term_scalar_in_scalar_out(term_id):
     m = model_for(term_id)
     field, values = OWN_FIELD[term_id]
-    s = MotionState(**{"speed_mps": 1.2, **BASE, field: values[-1]})
+    s = MotionState.from_values({"speed_mps": 1.2, **BASE, field: values[-1]})
     p = m.power_W(s)
     assert np.ndim(p) == 0 and np.isfinite(float(p))
     e = m.segment_energy(s, 3.0, 0.9, heading_change_rad=0.3)
@@ -216,9 +216,9 @@ def test_term_vector_matches_scalars(term_id):
     m = model_for(term_id)
     field, values = OWN_FIELD[term_id]
     kw = {"speed_mps": 1.2, **BASE}
-    p = m.power_W(MotionState(**{**kw, field: np.array(values)}))
+    p = m.power_W(MotionState.from_values({**kw, field: np.array(values)}))
     p = np.broadcast_to(p, (3,))
-    expected = [float(m.power_W(MotionState(**{**kw, field: v}))) for v in values]
+    expected = [float(m.power_W(MotionState.from_values({**kw, field: v}))) for v in values]
     np.testing.assert_allclose(p, expected)
     assert np.ptp(expected) > 0 or term_id in ("ancillary", "hover")  # the field matters
 
@@ -232,19 +232,19 @@ def test_term_broadcasts_n1_by_m(term_id):
     lengths = np.array([1.0, 2.0, 3.0, 4.0])
     turn = 0.25
     if field == "speed_mps":  # broadcast the term's own field against the step lengths
-        s = MotionState(**{**BASE, "speed_mps": col})
+        s = MotionState.from_values({**BASE, "speed_mps": col})
     elif term_id == "turning":  # path domain: the heading change is turning's input
-        s = MotionState(**{**BASE, "speed_mps": speeds})
+        s = MotionState.from_values({**BASE, "speed_mps": speeds})
         turn = np.abs(col)
     else:
-        s = MotionState(**{**BASE, "speed_mps": speeds, field: col})
+        s = MotionState.from_values({**BASE, "speed_mps": speeds, field: col})
     e = m.segment_energy(s, lengths, 0.8, heading_change_rad=turn)
     total = np.asarray(e.total_J)
     assert total.shape == (3, 4)
     for i, v in enumerate(values):
         for j in range(4):
             sp = col[i, 0] if field == "speed_mps" else speeds[j]
-            one = MotionState(**{**BASE, "speed_mps": sp, field: v})
+            one = MotionState.from_values({**BASE, "speed_mps": sp, field: v})
             t = abs(v) if term_id == "turning" else 0.25
             ref = m.segment_energy(one, lengths[j], 0.8, heading_change_rad=t).total_J
             assert total[i, j] == pytest.approx(float(ref), rel=1e-12, abs=1e-12)
@@ -370,30 +370,30 @@ def test_torque_terms_numpy_and_casadi_agree_near_a_stop():
 def test_hvac_hand_value():
     m = model_for("hvac")
     # 0.9 x 1500 W of air conditioning = 1350 W, driving or standing
-    assert float(m.power_W(MotionState(speed_mps=12.0, hvac_W=1500.0))) == pytest.approx(1350.0)
-    assert float(m.power_W(MotionState(speed_mps=0.0, hvac_W=1500.0))) == pytest.approx(1350.0)
+    assert float(m.power_W(MotionState(speed_mps=12.0).with_(hvac_W=1500.0))) == pytest.approx(1350.0)
+    assert float(m.power_W(MotionState(speed_mps=0.0).with_(hvac_W=1500.0))) == pytest.approx(1350.0)
     assert float(m.power_W(MotionState(speed_mps=12.0))) == 0.0  # planning default: no HVAC
     # path domain (a power term): 100 m at 10 m/s, D = 0.8 -> 12.5 s x 1350 W = 16875 J
-    e = m.segment_energy(MotionState(speed_mps=10.0, hvac_W=1500.0), 100.0, 0.8)
+    e = m.segment_energy(MotionState(speed_mps=10.0).with_(hvac_W=1500.0), 100.0, 0.8)
     assert float(e.total_J) == pytest.approx(16875.0)
 
 
 def test_heater_hand_value():
     m = model_for("heater")
     # 0.3 x 7000 W requested = 2100 W, driving or standing; no request (planning) -> 0 W
-    assert float(m.power_W(MotionState(speed_mps=15.0, heater_request_W=7000.0))) == pytest.approx(
+    assert float(m.power_W(MotionState(speed_mps=15.0).with_(heater_request_W=7000.0))) == pytest.approx(
         2100.0)
-    assert float(m.power_W(MotionState(speed_mps=0.0, heater_request_W=7000.0))) == pytest.approx(
+    assert float(m.power_W(MotionState(speed_mps=0.0).with_(heater_request_W=7000.0))) == pytest.approx(
         2100.0)
     assert float(m.power_W(MotionState(speed_mps=15.0))) == 0.0
     # path domain (a power term): 300 m at 15 m/s, D = 1 -> 20 s x 2100 W = 42000 J
-    e = m.segment_energy(MotionState(speed_mps=15.0, heater_request_W=7000.0), 300.0, 1.0)
+    e = m.segment_energy(MotionState(speed_mps=15.0).with_(heater_request_W=7000.0), 300.0, 1.0)
     assert float(e.total_J) == pytest.approx(42000.0)
 
 
 def test_heater_bad_negative_request():
     with pytest.raises(InputError, match=r"MotionState.heater_request_W = -1 is outside"):
-        MotionState(speed_mps=1.0, heater_request_W=np.array([0.0, -1.0])).validate()
+        MotionState(speed_mps=1.0).with_(heater_request_W=np.array([0.0, -1.0])).validate()
 
 
 def test_drift_hand_value():
@@ -403,20 +403,20 @@ def test_drift_hand_value():
     assert DRIFT_TAU_S == 1200.0
     # 1200 W at a cold start, 1200 e^-1 = 441.455 W after tau, 1200 e^-2 = 162.402 W after 2 tau
     for elapsed, watts in ((0.0, 1200.0), (1200.0, 441.455), (2400.0, 162.402)):
-        s = MotionState(speed_mps=8.0, elapsed_s=elapsed)
+        s = MotionState(speed_mps=8.0).with_(elapsed_s=elapsed)
         assert float(m.power_W(s)) == pytest.approx(watts, abs=1e-3)
     # standing still draws it too (cabin pull-down, pumps)
-    assert float(m.power_W(MotionState(speed_mps=0.0, elapsed_s=1200.0))) == pytest.approx(441.455,
+    assert float(m.power_W(MotionState(speed_mps=0.0).with_(elapsed_s=1200.0))) == pytest.approx(441.455,
                                                                                          abs=1e-3)
 
 
 def test_hvac_bad_negative_power():
     with pytest.raises(InputError, match=r"MotionState.hvac_W = -5 is outside \[0, inf\]"):
-        MotionState(speed_mps=1.0, hvac_W=np.array([100.0, -5.0])).validate()
+        MotionState(speed_mps=1.0).with_(hvac_W=np.array([100.0, -5.0])).validate()
 
 
 def test_drift_bad_elapsed_time():
     with pytest.raises(InputError, match=r"MotionState.elapsed_s = -1 is outside"):
-        MotionState(speed_mps=1.0, elapsed_s=-1.0).validate()
+        MotionState(speed_mps=1.0).with_(elapsed_s=-1.0).validate()
     with pytest.raises(InputError, match="elapsed_s holds a non-finite value"):
-        MotionState(speed_mps=1.0, elapsed_s=np.nan).validate()
+        MotionState(speed_mps=1.0).with_(elapsed_s=np.nan).validate()

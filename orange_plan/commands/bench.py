@@ -9,22 +9,19 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import (
+    JsonOpt,
+    bench_app,
+    default_scenario,
+    handles_errors,
+    out,
+    print_json,
+)
 from orange_plan.errors import InputError
 from orange_plan.progress import stages, wanted
 
-bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks (timings are medians).")
-app.add_typer(bench_app, name="bench")
-
 TARGETS = {"roadmap_s": 2.5, "queries_s": 1.0, "roadmap_vs_grid": 1.03, "speed_1000_warm_s": 0.1,
            "saving_vs_shortest": 0.20}
-
-
-def default_scenario() -> Path:
-    """The hilly example shipped with the package (scenarios/kiwibot_campus.toml)."""
-    from orange_plan.examples import examples_dir
-
-    return examples_dir("scenarios", "a SCENARIO argument") / "kiwibot_campus.toml"
 
 
 @bench_app.command("reach")
@@ -40,8 +37,8 @@ def bench_reach_cmd(
 ) -> None:
     """Roadmap/field build time, goal-query throughput, path energy vs a dense-grid
     reference and vs the shortest path, and speed-optimiser times (issue #3 targets)."""
+    from orange_plan.bench.reach import run_reach_bench
     from orange_plan.context import load_context
-    from orange_plan.planning.bench import run_reach_bench
 
     scenario = scenario or default_scenario()
     if repeats < 1:

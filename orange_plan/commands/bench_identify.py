@@ -12,8 +12,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, handles_errors, out, print_json
-from orange_plan.commands.bench import bench_app
+from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json
 from orange_plan.progress import bar, wanted
 
 DataOpt = Annotated[Path | None, typer.Option(
@@ -59,13 +58,13 @@ def _split(text):
 def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: OnlyOpt = None,
                     as_json: JsonOpt = False) -> None:
     """Fit on every other real run, predict the others' whole-run energy (two folds)."""
-    from orange_plan.errors import InputError
-    from orange_plan.identify.bench import (
+    from orange_plan.bench.identify import (
         CALIBRATION_CASES,
         calibration_benchmark,
         count_runs,
         summarise_calibration,
     )
+    from orange_plan.errors import InputError
 
     names = _split(only) or list(CALIBRATION_CASES)
     unknown = [n for n in names if n not in CALIBRATION_CASES]
@@ -103,7 +102,7 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
 def _coverage_table(summary, key: str, title: str, prior_only: bool) -> Table:
     """Exceedance of predicted + reserve(p) (honest: at most 100 (1 - p) %), a priori and
     calibrated, with the mean relative predictive sd the reserve was sized from."""
-    from orange_plan.identify.bench import RESERVE_CONFIDENCES
+    from orange_plan.bench.identify import RESERVE_CONFIDENCES
 
     table = Table(title=title, header_style="bold",
                   caption="reserve(p) = z_p x predictive sd (coefficient covariance + run-to-run "
@@ -135,8 +134,8 @@ def _share(summary: dict, tag: str) -> str:
 def online_cmd(scenarios: ScenariosOpt = None, seeds: SeedsOpt = 3,
                only: OnlyOpt = None, png: PngOpt = None, as_json: JsonOpt = False) -> None:
     """Offline vs online range accuracy on simulated runs to depletion."""
+    from orange_plan.bench.identify import BENCH_TRUTHS, online_benchmark, summarise
     from orange_plan.errors import InputError
-    from orange_plan.identify.bench import BENCH_TRUTHS, online_benchmark, summarise
 
     names = _split(only) or list(BENCH_TRUTHS)
     if png is not None:
@@ -151,8 +150,8 @@ def online_cmd(scenarios: ScenariosOpt = None, seeds: SeedsOpt = 3,
     summary = summarise(rows)
     report = {"summary": summary, "runs": [r.to_dict() for r in rows]}
     if png is not None:
+        from orange_plan.bench.identify import online_trace
         from orange_plan.context import load_context
-        from orange_plan.identify.bench import online_trace
         from orange_plan.viz.online_plot import plot_online_traces
 
         traces = [online_trace(load_context(scenarios / f"{n}.toml"), BENCH_TRUTHS.get(n, {}),

@@ -8,8 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, handles_errors, out, print_json
-from orange_plan.commands.bench import bench_app, default_scenario
+from orange_plan.cli import JsonOpt, bench_app, default_scenario, handles_errors, out, print_json
 from orange_plan.errors import InputError
 from orange_plan.progress import bar, wanted
 

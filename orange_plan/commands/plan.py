@@ -7,8 +7,7 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
-from orange_plan.commands.reach import parse_xy
+from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, parse_xy, print_json
 from orange_plan.errors import InputError
 from orange_plan.paths import check_output
 from orange_plan.progress import stages, wanted

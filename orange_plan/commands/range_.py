@@ -12,7 +12,7 @@ from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, prin
 def range_cmd(scenario: ScenarioArg, as_json: JsonOpt = False) -> None:
     """Operational range: d_max, v_opt and where the energy goes (Eq. 3, 4, 6, 11)."""
     from orange_plan.context import load_context
-    from orange_plan.physics.range import range_report
+    from orange_plan.range_report import range_report
 
     report = range_report(load_context(scenario))
     if as_json:

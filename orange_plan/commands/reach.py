@@ -8,21 +8,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
-from orange_plan.errors import InputError
+from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, parse_xy, print_json
 from orange_plan.progress import stages, wanted
-
-
-def parse_xy(text: str, option: str) -> tuple[float, float]:
-    """``"X,Y"`` -> (x, y) in metres; InputError naming the option otherwise."""
-    parts = [p.strip() for p in str(text).split(",")]
-    try:
-        x, y = (float(p) for p in parts)
-    except ValueError:
-        raise InputError(f"{option} must be X,Y in metres (e.g. 120,45.5), got {text!r}") from None
-    if not all(map(lambda v: v == v and abs(v) != float("inf"), (x, y))):
-        raise InputError(f"{option} must be finite, got {text!r}")
-    return x, y
 
 
 @app.command("reach")

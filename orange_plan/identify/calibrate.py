@@ -49,17 +49,15 @@ With one recording there is nothing run-to-run to measure and the scenario's
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from orange_plan.errors import InputError
-from orange_plan.physics.builder import reference_coefficients
+from orange_plan.model_builder import model_with_terms
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
-from orange_plan.physics.terms import TERMS, surface_rolling_term
-
-WHEELS_UP_COLUMN = "wheels_up"
+from orange_plan.telemetry.state import recording_state, wheels_up
 
 
 @dataclass(frozen=True)
@@ -123,53 +121,14 @@ class Samples:
     wheels_up: np.ndarray
 
     def subset(self, mask: np.ndarray) -> Samples:
-        return Samples(_take(self.state, mask), self.power_W[mask], self.dt_s[mask],
+        return Samples(self.state.take(mask, mask.size), self.power_W[mask], self.dt_s[mask],
                        self.block[mask], self.wheels_up[mask])
-
-
-def _take(state: MotionState, mask) -> MotionState:
-    n = mask.size
-    return MotionState(**{f.name: np.broadcast_to(np.asarray(getattr(state, f.name)), (n,))[mask]
-                          for f in fields(MotionState)})
-
-
-def _concat(states: Sequence[MotionState], sizes: Sequence[int]) -> MotionState:
-    return MotionState(**{
-        f.name: np.concatenate([np.broadcast_to(np.asarray(getattr(s, f.name)), (n,))
-                                for s, n in zip(states, sizes)])
-        for f in fields(MotionState)})
-
-
-def recording_state(rec, ctx, grade_window_m: float | None = None,
-                    yaw_rate_column: str | None = None) -> MotionState:
-    """MotionState of a recording for fitting and replay (``telemetry.motion_state``), with
-    wheels-up rows stripped of traction and, optionally, the yaw rate from another column
-    (e.g. BorealTC's ``wheel_yaw_rate_radps``: skid-steer scrub follows the wheels).
-
-    Raises
-    ------
-    InputError
-        ``yaw_rate_column`` is not in the recording.
-    """
-    from orange_plan.telemetry.recording import motion_state
-
-    extra = {} if grade_window_m is None else {"grade_window_m": grade_window_m}
-    state = motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz, **extra)
-    n = len(rec.frame)
-    if yaw_rate_column is not None:
-        if yaw_rate_column not in rec.frame.columns:
-            raise InputError(f"{rec.source}: no column '{yaw_rate_column}' for the yaw rate")
-        state = state.with_(yaw_rate_radps=rec.frame[yaw_rate_column].to_numpy(float))
-    wheels = _wheels_up(rec)
-    if wheels.any():
-        state = _no_traction(state, wheels, n)
-    return state
 
 
 def recording_samples(recordings, ctx, n_blocks: int = 10,
                       grade_window_m: float | None = None,
                       yaw_rate_column: str | None = None) -> Samples:
-    """Motion states, power and time weights of recordings (telemetry.motion_state).
+    """Motion states, power and time weights of recordings (``telemetry.state.recording_state``).
 
     Parameters
     ----------
@@ -184,9 +143,10 @@ def recording_samples(recordings, ctx, n_blocks: int = 10,
         raise InputError("calibrate needs at least one recording")
     states, sizes, power, dt, block, up = [], [], [], [], [], []
     for i, rec in enumerate(recordings):
-        state = recording_state(rec, ctx, grade_window_m, yaw_rate_column)
+        state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz, grade_window_m=grade_window_m,
+                                yaw_rate_column=yaw_rate_column)
         n = len(rec.frame)
-        wheels = _wheels_up(rec)
+        wheels = wheels_up(rec)
         t = rec.t_s
         step = np.r_[np.diff(t) * rec.interval_ok, 0.0]
         edges = np.linspace(t[0], t[-1], n_blocks + 1)
@@ -197,66 +157,8 @@ def recording_samples(recordings, ctx, n_blocks: int = 10,
         block.append(np.stack([np.full(n, i), np.clip(np.searchsorted(edges, t, "right") - 1,
                                                        0, n_blocks - 1)], axis=1))
         up.append(wheels)
-    return Samples(_concat(states, sizes), np.concatenate(power), np.concatenate(dt),
+    return Samples(MotionState.concat(states, sizes), np.concatenate(power), np.concatenate(dt),
                    np.concatenate(block), np.concatenate(up))
-
-
-def _wheels_up(rec) -> np.ndarray:
-    if WHEELS_UP_COLUMN not in rec.frame.columns:
-        return np.zeros(len(rec.frame), bool)
-    col = rec.frame[WHEELS_UP_COLUMN]
-    if col.dtype == object:
-        return col.astype(str).str.strip().str.lower().isin(["1", "true", "yes"]).to_numpy()
-    return col.fillna(0).to_numpy(float) != 0
-
-
-def _no_traction(state: MotionState, mask: np.ndarray, n: int) -> MotionState:
-    """Wheels in the air: no speed over ground, grade, acceleration or turning."""
-    zero = {"speed_mps": 0.0, "sin_t": 0.0, "cos_t": 1.0, "accel_mps2": 0.0,
-            "yaw_rate_radps": 0.0}
-    changes = {}
-    for name, value in zero.items():
-        arr = np.array(np.broadcast_to(np.asarray(getattr(state, name), float), (n,)))
-        arr[mask] = value
-        changes[name] = arr
-    return state.with_(**changes)
-
-
-def model_with_terms(ctx, terms: Sequence[str] | None, surface_names=None) -> EnergyModel:
-    """The context's model, or one with exactly ``terms`` (vocabulary ids, SPEC §6).
-
-    Coefficients keep the context model's values and variances; new ones start at the
-    scenario's reference values with ``prior_relative_stderr`` (zero value: no prior).
-    """
-    if terms is None:
-        return ctx.model
-    names = tuple(surface_names or ctx.world.map.surface_names)
-    built = []
-    for t in terms:
-        if t == "surface_rolling":
-            if not names:
-                raise InputError("term 'surface_rolling' needs surfaces (map or surface column)")
-            built.append(surface_rolling_term(names))
-        elif t in TERMS:
-            built.append(TERMS[t])
-        else:
-            raise InputError(f"unknown term '{t}'; known: {', '.join([*TERMS, 'surface_rolling'])}")
-    defaults = reference_coefficients(ctx.scenario)
-    have = ctx.model.as_dict()
-    theta = {}
-    for term in built:
-        for name in term.coefficients:
-            if name in have:
-                theta[name] = have[name]
-            else:
-                theta[name] = defaults["rolling_kg"] if name.startswith("rolling_kg_") else defaults[name]
-    model = ctx.model.with_terms(built, theta)
-    rel = ctx.scenario.model.prior_relative_stderr
-    cov = model.cov.copy()
-    for i, name in enumerate(model.names):
-        if name not in have:
-            cov[i, i] = (rel * theta[name]) ** 2
-    return model.with_theta({}, cov)
 
 
 class Calibrator:

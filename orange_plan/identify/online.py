@@ -93,6 +93,11 @@ class OnlineEstimator:
     energy_available_J : usable battery energy at the start, E_avail [J]
     memory_s : forgetting time constant of the coefficient estimate [s]
     window_s : span of recent motion over which energy per metre is taken [s]
+
+    Attributes (scikit-learn style, like ``Calibrator``)
+    ----------------------------------------------------
+    theta_ : current coefficients, in ``model.names`` order
+    cov_ : their covariance
     """
 
     def __init__(self, model: EnergyModel, energy_available_J: float, memory_s: float = 300.0,
@@ -109,8 +114,8 @@ class OnlineEstimator:
         self._theta0 = model.theta.copy()
         k = model.theta.size
         self._data_info, self._data_b = np.zeros((k, k)), np.zeros(k)
-        self.theta = model.theta.copy()
-        self.cov = model.cov.copy()
+        self.theta_ = model.theta.copy()
+        self.cov_ = model.cov.copy()
         self._noise_var: float | None = None
         self._data_yy = self._data_n = 0.0
         self._recent: deque = deque()  # (duration_s, distance_m, G, C) per batch
@@ -129,10 +134,10 @@ class OnlineEstimator:
         speed = np.broadcast_to(np.asarray(state.speed_mps, float), y.shape)
         if not np.all(np.isfinite(y)) or np.any(dt < 0) or not np.all(np.isfinite(dt)):
             raise InputError("online update needs finite power and dt_s >= 0")
-        current = self.model.with_theta(dict(zip(self.model.names, self.theta)))
+        current = self.model.with_theta(dict(zip(self.model.names, self.theta_)))
         jac = np.asarray(current.power_jacobian(state), float).reshape(y.size, -1)
         pred = np.asarray(current.power_W(state), float) * np.ones(y.size)
-        correction_J = float(np.sum((pred - jac @ self.theta) * dt))
+        correction_J = float(np.sum((pred - jac @ self.theta_) * dt))
         self._learn(jac, y, pred, float(dt.sum()))
         self.t_s += float(dt.sum())
         self.energy_used_J += float(np.sum(y * dt))
@@ -144,7 +149,7 @@ class OnlineEstimator:
 
     def _learn(self, jac, y, pred, duration_s) -> None:
         f = math.exp(-duration_s / self.memory_s)
-        y_lin = y - pred + jac @ self.theta
+        y_lin = y - pred + jac @ self.theta_
         # data sums without the noise variance: old and new samples weigh by age alone
         self._data_info = f * self._data_info + jac.T @ jac
         self._data_b = f * self._data_b + jac.T @ y_lin
@@ -154,15 +159,15 @@ class OnlineEstimator:
             self._noise_var = max(float(np.mean((y - pred) ** 2)), 1e-12)
         for _ in range(2):  # theta given R, then R from the weighted residuals of that theta
             info = self._info0 + self._data_info / self._noise_var
-            self.cov = np.linalg.pinv(info)
-            self.theta = self.cov @ (self._info0 @ self._theta0 + self._data_b / self._noise_var)
-            sse = (self._data_yy - 2 * self.theta @ self._data_b
-                   + self.theta @ self._data_info @ self.theta)
+            self.cov_ = np.linalg.pinv(info)
+            self.theta_ = self.cov_ @ (self._info0 @ self._theta0 + self._data_b / self._noise_var)
+            sse = (self._data_yy - 2 * self.theta_ @ self._data_b
+                   + self.theta_ @ self._data_info @ self.theta_)
             dof = max(self._data_n - np.count_nonzero(np.diag(self._data_info) > 0), 1.0)
             self._noise_var = max(sse / dof, 1e-12)
         # directions neither prior nor data inform keep the prior value
         unseen = np.diag(info) <= 0
-        self.theta[unseen] = self._theta0[unseen]
+        self.theta_[unseen] = self._theta0[unseen]
 
     def _remember(self, duration_s, distance_m, g, correction_J) -> None:
         self._recent.append((duration_s, distance_m, g, correction_J))
@@ -179,10 +184,10 @@ class OnlineEstimator:
         values = []
         for part in np.array_split(np.arange(len(batches)), WINDOW_PARTS):
             dist = sum(batches[i][1] for i in part)
-            g = sum((batches[i][2] for i in part), np.zeros(self.theta.size))
+            g = sum((batches[i][2] for i in part), np.zeros(self.theta_.size))
             if dist <= 0:
                 return 0.0
-            values.append((float(g @ self.theta) + sum(batches[i][3] for i in part)) / dist)
+            values.append((float(g @ self.theta_) + sum(batches[i][3] for i in part)) / dist)
         return float(np.std(values, ddof=1)) / math.sqrt(WINDOW_PARTS)
 
     def estimate(self, route_jacobian=None, route_length_m: float | None = None) -> OnlineEstimate:
@@ -204,12 +209,12 @@ class OnlineEstimator:
             correction_J = 0.0
         else:
             dist = sum(b[1] for b in self._recent)
-            g = sum((b[2] for b in self._recent), np.zeros(self.theta.size))
+            g = sum((b[2] for b in self._recent), np.zeros(self.theta_.size))
             correction_J = sum(b[3] for b in self._recent)
         remaining = max(0.0, self.energy_available_J - self.energy_used_J)
         if dist > 0:
-            e = (float(g @ self.theta) + correction_J) / dist
-            e_sd = math.hypot(math.sqrt(max(float(g @ self.cov @ g), 0.0)) / dist,
+            e = (float(g @ self.theta_) + correction_J) / dist
+            e_sd = math.hypot(math.sqrt(max(float(g @ self.cov_ @ g), 0.0)) / dist,
                               0.0 if route_jacobian is not None else self._spread_J_per_m())
         else:
             e, e_sd = float("nan"), float("nan")
@@ -221,9 +226,9 @@ class OnlineEstimator:
             rng_m = remaining / e
             rng_sd = rng_m * (e_sd / e)  # = remaining sd(e) / e^2 without overflowing
         names = self.model.names
-        sd = np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+        sd = np.sqrt(np.clip(np.diag(self.cov_), 0.0, None))
         return OnlineEstimate(
-            t_s=self.t_s, theta=dict(zip(names, self.theta.tolist())),
+            t_s=self.t_s, theta=dict(zip(names, self.theta_.tolist())),
             stderr=dict(zip(names, sd.tolist())), energy_used_J=self.energy_used_J,
             energy_remaining_J=remaining, distance_m=self.distance_m, energy_per_m_J=e,
             energy_per_m_sd_J=e_sd, range_remaining_m=rng_m, range_remaining_sd_m=rng_sd,
@@ -249,12 +254,5 @@ def stream(estimator: OnlineEstimator, state: MotionState, power_W, t_s, batch_s
         if b <= a:
             continue
         idx = slice(int(a), int(b))
-        out.append(estimator.update(_slice(state, idx, t.size), y[idx], dt[idx]))
+        out.append(estimator.update(state.take(idx, t.size), y[idx], dt[idx]))
     return out
-
-
-def _slice(state: MotionState, idx: slice, n: int) -> MotionState:
-    from dataclasses import fields
-
-    return MotionState(**{f.name: np.broadcast_to(np.asarray(getattr(state, f.name)), (n,))[idx]
-                          for f in fields(MotionState)})

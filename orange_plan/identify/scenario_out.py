@@ -15,9 +15,9 @@ reference model enables by their physical value:
 * ``turn_J_per_rad`` -> ``[robot] turn_coeff_W_s_per_rad``
 
 Mass and crr stay as they were: ``rolling_kg``, ``grade_kg``, ``inertia_kg`` and the
-per-surface ``rolling_kg_<s>`` live in ``[model]`` (``physical_values`` reports the implied
-crr factor and masses). Physical keys are clipped at 0 where a fit went negative; the term
-stays on because ``[model]`` sets its coefficient (``builder.reference_term_ids``).
+per-surface ``rolling_kg_<s>`` live in ``[model]`` (``model_builder.physical_values``, the
+lumped <-> physical table read backwards, reports the implied crr factor and masses). Physical keys are clipped at 0 where a fit went negative; the term
+stays on because ``[model]`` sets its coefficient (``model_builder.reference_term_ids``).
 
 Everything the fit did not touch stays as the scenario had it: a term left out by
 ``calibrate --terms`` keeps its value, and the ``[model]`` table keeps its other entries
@@ -39,41 +39,14 @@ import tomli_w
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError, OrangeError
-from orange_plan.physics.builder import build_model
+from orange_plan.model_builder import LUMPED, build_model, physical_values
 from orange_plan.physics.model import EnergyModel
 from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
 
-WRITTEN_BACK = ("ancillary.s1_W_per_Hz", "robot.hover_W", "robot.drag_coeff_kg_per_m",
-                "robot.turn_coeff_W_s_per_rad")
-"""Physical scenario keys (of ``physical_values``) a calibrated scenario updates, clipped at 0."""
-
-
-def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
-    """Physical quantities implied by lumped coefficients (dotted scenario keys or
-    descriptive names): see the module docstring."""
-    theta = model.as_dict()
-    omega, mass = scenario.omega, scenario.robot.mass_kg
-    keep = 1.0 - scenario.losses.ancillary
-    out: dict[str, float] = {}
-    if "ancillary_W" in theta:
-        out["ancillary_load_W"] = theta["ancillary_W"] * keep
-    if "sensor_W_per_Hz" in theta:
-        out["ancillary.s1_W_per_Hz"] = theta["sensor_W_per_Hz"] * keep
-    if "hover_W" in theta:
-        out["robot.hover_W"] = theta["hover_W"]
-    if "drag_kg_per_m" in theta:
-        out["robot.drag_coeff_kg_per_m"] = theta["drag_kg_per_m"] * omega
-    if "turn_J_per_rad" in theta:
-        out["robot.turn_coeff_W_s_per_rad"] = theta["turn_J_per_rad"]
-    if "rolling_kg" in theta:
-        out["crr_factor"] = theta["rolling_kg"] * omega / mass
-    if "grade_kg" in theta:
-        out["mass_from_grade_kg"] = theta["grade_kg"] * omega
-    if "inertia_kg" in theta:
-        out["mass_from_inertia_kg"] = theta["inertia_kg"] * omega
-    if "regen_efficiency" in theta:
-        out["regen_efficiency"] = theta["regen_efficiency"]
-    return out
+WRITTEN_BACK = tuple(row.physical for row in LUMPED.values()
+                    if row.physical is not None and row.physical.startswith(("robot.", "ancillary.")))
+"""Physical scenario keys (rows of ``model_builder.LUMPED``) a calibrated scenario updates,
+clipped at 0."""
 
 
 def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path) -> dict:

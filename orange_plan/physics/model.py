@@ -155,7 +155,9 @@ class EnergyModel:
             i += n
         return total
 
-    def _regen_fraction(self, theta=None) -> float:
+    def regen_fraction(self, theta=None) -> float:
+        """Share r of negative lumped traction work that returns to the battery [-]
+        (``eff Omega^2``; 0 without a ``regen`` term)."""
         if not self.has("regen"):
             return 0.0
         theta = self.theta if theta is None else theta
@@ -172,14 +174,23 @@ class EnergyModel:
         """Lumped net traction force ``F / Omega`` [N] (before the no-recovery clip)."""
         return self._group_sum(state, "force", theta)
 
+    def charged_force_N(self, force, positive_part=None, theta=None):
+        """The no-recovery clip: the traction force charged to the battery [N].
+
+        ``max(0, F) - r max(0, -F)``, written ``r F + (1 - r) max(0, F)`` (equal for every
+        F). ``positive_part`` stands for ``max(0, F)``: an optimiser passes its epigraph
+        variable ``s >= F, s >= 0`` there (``planning.speed``), exact at its optimum.
+        """
+        positive = ops.fmax(force, 0.0) if positive_part is None else positive_part
+        if not self.has("regen"):  # not `if regen`: theta may be a CasADi symbol
+            return positive
+        regen = self.regen_fraction(theta)
+        return regen * force + (1 - regen) * positive
+
     def traversal_power_W(self, state: MotionState, theta=None):
         """Battery power for traction: ``max(0,F) v`` minus regeneration [W]."""
         force = self.traction_force_N(state, theta)
-        positive = ops.fmax(force, 0.0) * state.speed_mps
-        regen = self._regen_fraction(theta)
-        if self.has("regen"):  # not `if regen`: theta may be a CasADi symbol
-            positive = positive - regen * ops.fmax(-force, 0.0) * state.speed_mps
-        return positive
+        return self.charged_force_N(force, theta=theta) * state.speed_mps
 
     def power_W(self, state: MotionState, theta=None):
         """Battery power at ``state`` in the time domain [W]."""
@@ -239,7 +250,7 @@ class EnergyModel:
             if term.group == "power" or term.group == "rate":
                 columns += phis
             elif term.group == "force":
-                regen = self._regen_fraction()
+                regen = self.regen_fraction()
                 columns += [np.where(moving_on, p * speed, regen * p * speed) for p in phis]
             else:  # regen: d/d(eff) of -eff Omega^2 max(0, -F) v
                 columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * speed)
@@ -259,7 +270,7 @@ class EnergyModel:
         moving_s = length / speed
         force = np.asarray(self.traction_force_N(state), dtype=float)
         shape = np.broadcast(force, speed, length).shape
-        regen = self._regen_fraction()
+        regen = self.regen_fraction()
         turn_state = MotionState(speed_mps=speed, yaw_rate_radps=heading_change_rad)
         columns = []
         for term in self.terms:

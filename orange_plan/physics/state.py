@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,34 @@ from orange_plan.errors import InputError
 from orange_plan.physics import ops
 
 Array = Any  # numpy array, float or CasADi symbol
+
+CHANNELS: dict[str, Channel] = {}
+"""Every declared channel by name (declaring a ``Channel`` registers it)."""
+
+
+@dataclass(frozen=True)
+class Channel:
+    """A named operating condition that a term reads from ``MotionState.channels``.
+
+    The set is open: a term declares the channels it needs (``Term.channels``), a recording
+    fills each declared channel from its column of the same name (``telemetry.state``), and
+    ``MotionState.validate`` checks the declared range. A new condition is one declaration,
+    not an edit of MotionState, its validation and the recording reader.
+
+    Parameters
+    ----------
+    name : unit-suffixed name, also the recording column (``hvac_W``)
+    lo, hi : allowed range of a value
+    description : one line, with the unit
+    """
+
+    name: str
+    lo: float = -np.inf
+    hi: float = np.inf
+    description: str = ""
+
+    def __post_init__(self):
+        CHANNELS[self.name] = self
 
 
 @dataclass(frozen=True)
@@ -30,9 +59,8 @@ class MotionState:
     yaw_rate_radps : heading rate [rad/s]
     sensor_rate_Hz : sensor operating frequency [Hz]
     surface_code : integer code of the surface under the robot, -1 for "default ground"
-    hvac_W : cabin heating / air-conditioning electrical power, measured or planned [W]
-    heater_request_W : requested cabin heating power (a climate-control demand, not a meter) [W]
-    elapsed_s : time since the start of the trip or mission (drivetrain warm-up) [s]
+    channels : further operating conditions by ``Channel`` name (cabin HVAC power, elapsed
+        time...); an absent channel reads 0
     """
 
     speed_mps: Array
@@ -47,13 +75,50 @@ class MotionState:
     yaw_rate_radps: Array = 0.0
     sensor_rate_Hz: Array = 0.0
     surface_code: Array = -1
-    hvac_W: Array = 0.0
-    heater_request_W: Array = 0.0
-    elapsed_s: Array = 0.0
+    channels: Mapping[str, Array] = field(default_factory=dict)
+
+    def channel(self, name: str) -> Array:
+        """The value of channel ``name`` (0 where the state does not carry it)."""
+        return self.channels.get(name, 0.0)
 
     def with_(self, **changes) -> MotionState:
-        """A copy with some fields replaced."""
-        return replace(self, **changes)
+        """A copy with some fields or channels replaced (channels by their name)."""
+        own = {f.name for f in fields(self)}
+        extra = {k: v for k, v in changes.items() if k not in own}
+        unknown = [k for k in extra if k not in CHANNELS]
+        if unknown:
+            raise TypeError(f"MotionState has no field or channel '{unknown[0]}'")
+        fixed = {k: v for k, v in changes.items() if k in own}
+        if extra:
+            fixed["channels"] = {**fixed.get("channels", self.channels), **extra}
+        return replace(self, **fixed)
+
+    def values(self) -> dict[str, Array]:
+        """Every field and channel by name (channels flattened beside the fields)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "channels"}
+        return {**out, **self.channels}
+
+    def take(self, index, n: int) -> MotionState:
+        """The samples ``index`` (mask, slice or integers) of a per-sample state of ``n``
+        samples; scalar fields are broadcast to ``n`` first."""
+        picked = {k: np.broadcast_to(np.asarray(v), (n,))[index] for k, v in self.values().items()}
+        return MotionState.from_values(picked)
+
+    @staticmethod
+    def concat(states: Sequence[MotionState], sizes: Sequence[int]) -> MotionState:
+        """Per-sample states of ``sizes`` samples each, one after the other (a channel one
+        state lacks reads 0 there)."""
+        names = dict.fromkeys(k for s in states for k in s.values())
+        return MotionState.from_values({
+            k: np.concatenate([np.broadcast_to(np.asarray(s.values().get(k, 0.0)), (n,))
+                               for s, n in zip(states, sizes)])
+            for k in names})
+
+    @staticmethod
+    def from_values(values: Mapping[str, Array]) -> MotionState:
+        """A state from field and channel values by name (the inverse of ``values``)."""
+        return MotionState(**{k: v for k, v in values.items() if k not in CHANNELS}).with_(
+            **{k: v for k, v in values.items() if k in CHANNELS})
 
     def air_velocity(self):
         """Air (or water) velocity relative to the robot, ``a = v u - w`` [m/s]."""
@@ -69,21 +134,20 @@ class MotionState:
         InputError
             Naming the first offending field and value.
         """
-        for f in fields(self):
-            value = getattr(self, f.name)
+        for name, value in self.values().items():
             if ops.is_symbolic(value):
                 continue
             arr = np.asarray(value, dtype=float)
             if not np.all(np.isfinite(arr)):
-                raise InputError(f"MotionState.{f.name} holds a non-finite value")
+                raise InputError(f"MotionState.{name} holds a non-finite value")
         _check_range("speed_mps", self.speed_mps, 0.0, np.inf)
         _check_range("crr", self.crr, 0.0, 1.0)
         _check_range("cos_t", self.cos_t, 0.0, 1.0)
         _check_range("sin_t", self.sin_t, -1.0, 1.0)
         _check_range("sensor_rate_Hz", self.sensor_rate_Hz, 0.0, np.inf)
-        _check_range("hvac_W", self.hvac_W, 0.0, np.inf)
-        _check_range("heater_request_W", self.heater_request_W, 0.0, np.inf)
-        _check_range("elapsed_s", self.elapsed_s, 0.0, np.inf)
+        for name, value in self.channels.items():
+            if name in CHANNELS:
+                _check_range(name, value, CHANNELS[name].lo, CHANNELS[name].hi)
         return self
 
 

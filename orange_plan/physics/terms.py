@@ -25,11 +25,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
 from orange_plan.physics import ops
-from orange_plan.physics.state import MotionState
+from orange_plan.physics.state import Channel, MotionState
 
 G_MPS2 = 9.81
 """Standard gravity used by the reference model [m/s^2] (SPEC §7)."""
+DEFAULT_REGEN_EFFICIENCY = 0.5
+"""A priori ``regen_efficiency``: fraction of braking/descending energy recovered [-]."""
 
 Group = Literal["power", "force", "rate", "regen"]
 
@@ -46,6 +50,7 @@ class Term:
     coefficients : names of the coefficients (unit suffixed)
     feature : ``feature(state) -> tuple`` of one feature per coefficient
     description : one line for the README and reports
+    channels : the ``MotionState.channels`` the feature reads (beyond the motion fields)
     """
 
     id: str
@@ -53,6 +58,7 @@ class Term:
     coefficients: tuple[str, ...]
     feature: Callable[[MotionState], tuple]
     description: str
+    channels: tuple[Channel, ...] = ()
 
     def features(self, state: MotionState) -> tuple:
         """Feature values ``phi`` (one per coefficient) at ``state``."""
@@ -183,13 +189,21 @@ and the cabin pull-down settle over tens of minutes. Not fitted (it would make t
 non-linear): chosen by leave-one-run-out cross-validation on fitting trips only (README)."""
 
 
+HVAC_W = Channel("hvac_W", 0.0, np.inf, "cabin heating / air-conditioning electrical power, "
+                 "measured or planned [W]")
+HEATER_REQUEST_W = Channel("heater_request_W", 0.0, np.inf, "requested cabin heating power "
+                           "(a climate-control demand, not a meter) [W]")
+ELAPSED_S = Channel("elapsed_s", 0.0, np.inf, "time since the start of the trip or mission "
+                    "(drivetrain warm-up) [s]")
+
+
 def hvac_feature(state: MotionState):
     """Cabin heating / air-conditioning electrical power ``P_hvac`` [W/-] (measured or planned).
 
     Coefficient ``hvac_fraction`` [-]: the share of that power drawn from the traction battery
     (1 when the compressor or heater sits on the high-voltage bus, as in an electric car).
     """
-    return (_per_sample(state.hvac_W, state),)
+    return (_per_sample(state.channel(HVAC_W.name), state),)
 
 
 def heater_feature(state: MotionState):
@@ -199,7 +213,7 @@ def heater_feature(state: MotionState):
     actually draws. The heater cycles and stops once the coolant is warm, so the share is well
     below 1 and only calibration can tell it (BMW i3 trips: 0.28 +- 0.04; README).
     """
-    return (_per_sample(state.heater_request_W, state),)
+    return (_per_sample(state.channel(HEATER_REQUEST_W.name), state),)
 
 
 def drift_feature(state: MotionState):
@@ -208,7 +222,7 @@ def drift_feature(state: MotionState):
     Coefficient ``drift_W`` [W]: the extra battery power at a cold start, decaying as the
     drivetrain, tyres and cabin reach their working temperature (viscous losses fall).
     """
-    return (_per_sample(ops.exp(-state.elapsed_s / DRIFT_TAU_S), state),)
+    return (_per_sample(ops.exp(-state.channel(ELAPSED_S.name) / DRIFT_TAU_S), state),)
 
 
 TERMS: dict[str, Term] = {
@@ -237,11 +251,14 @@ TERMS: dict[str, Term] = {
         Term("turning_torque", "power", ("turning_torque_W",), turning_torque_feature,
              "skid-steer scrub at constant torque while turning (motor-current power)"),
         Term("hvac", "power", ("hvac_fraction",), hvac_feature,
-             "share of the cabin heating / air-conditioning power drawn from the battery"),
+             "share of the cabin heating / air-conditioning power drawn from the battery",
+             (HVAC_W,)),
         Term("heater", "power", ("heater_fraction",), heater_feature,
-             "share of the requested cabin heating power drawn by the high-voltage heater"),
+             "share of the requested cabin heating power drawn by the high-voltage heater",
+             (HEATER_REQUEST_W,)),
         Term("drift", "power", ("drift_W",), drift_feature,
-             "extra power at a cold start, decaying with time constant DRIFT_TAU_S"),
+             "extra power at a cold start, decaying with time constant DRIFT_TAU_S",
+             (ELAPSED_S,)),
     )
 }
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""
@@ -249,9 +266,16 @@ TERMS: dict[str, Term] = {
 REFERENCE_TERM_IDS = ("ancillary", "sensor_rate", "hover", "rolling", "aero_drag", "grade",
                       "turning")
 """SPEC §7's reference model: switched on by the scenario's physical values
-(``builder.reference_term_ids``)."""
+(``model_builder.reference_term_ids``)."""
 EXTRA_TERM_IDS = (*(t for t in TERMS if t not in REFERENCE_TERM_IDS), "surface_rolling")
 """Terms a scenario adds through ``[model] terms``: every other vocabulary term."""
+
+
+def model_coefficient_names(extra_terms) -> set[str]:
+    """Coefficient names a scenario's [model] table may set: the reference terms' and those
+    of ``extra_terms`` (per-surface ones go by their ``rolling_kg_`` prefix)."""
+    return {c for t in (*REFERENCE_TERM_IDS, *extra_terms) if t in TERMS
+            for c in TERMS[t].coefficients}
 
 
 def default_ground_rolling_feature(state: MotionState):

@@ -15,6 +15,12 @@ def wind_vector_mps(speed_mps, from_deg):
     return -speed_mps * np.sin(rad), -speed_mps * np.cos(rad)
 
 
+def wind_xy_mps(speed_mps: float, from_deg: float) -> tuple[float, float]:
+    """``wind_vector_mps`` of one wind as a pair of floats (x east, y north) [m/s]."""
+    wx, wy = wind_vector_mps(speed_mps, from_deg)
+    return float(wx), float(wy)
+
+
 def wind_speed_and_from(wind_x_mps, wind_y_mps):
     """Inverse of ``wind_vector_mps``: speed [m/s] and from-direction in [0, 360) [deg]."""
     return (np.hypot(wind_x_mps, wind_y_mps),

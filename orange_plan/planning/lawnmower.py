@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from orange_plan.errors import PlanningError
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
-from orange_plan.planning.paths import clean_polyline
+from orange_plan.planning.paths import clean_polyline, distinct_vertices
 
 DEFAULT_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 10))
 """Sweep angles tried by ``best_energy_sweep_angle_deg`` [deg]; the best one is refined by
@@ -262,7 +262,7 @@ def join_pieces(home_xy, pieces, detours: Detours):
     out.append(back[1:])
     flags.append(np.zeros(len(back) - 1, bool))
     xy, flag = np.vstack(out), np.concatenate(flags)
-    keep = np.r_[True, np.hypot(*np.diff(xy, axis=0).T) > 1e-9]  # zero-length segments
+    keep = distinct_vertices(xy)  # zero-length segments
     xy, flag = xy[keep], flag[keep]
     if len(xy) < 2:
         xy, flag = np.vstack([xy, xy]), np.r_[flag, False]

@@ -28,6 +28,7 @@ from orange_plan.planning.roadmap import (
     add_vertices,
     energy_field,
     ompl_raster_setup,
+    walk_predecessors,
 )
 
 
@@ -54,13 +55,27 @@ class PlannedPath:
     method: str
 
 
-def clean_polyline(xy) -> np.ndarray:
-    """Drop consecutive duplicate vertices (a zero-length step has no heading)."""
+MIN_STEP_M = 1e-9
+"""Vertices closer than this to the one before are duplicates (no heading between) [m]."""
+
+
+def distinct_vertices(xy) -> np.ndarray:
+    """Mask of a polyline's vertices to keep: the first, and each one more than
+    ``MIN_STEP_M`` from the vertex before it."""
     p = np.asarray(xy, float).reshape(-1, 2)
-    if len(p) < 2:
-        return np.vstack([p, p])
-    keep = np.r_[True, np.hypot(*np.diff(p, axis=0).T) > 1e-9]
-    p = p[keep]
+    return np.r_[True, np.hypot(*np.diff(p, axis=0).T) > MIN_STEP_M][:len(p)]
+
+
+def dedupe(xy) -> np.ndarray:
+    """Drop consecutive duplicate vertices (no padding)."""
+    p = np.asarray(xy, float).reshape(-1, 2)
+    return p[distinct_vertices(p)]
+
+
+def clean_polyline(xy) -> np.ndarray:
+    """Drop consecutive duplicate vertices (a zero-length step has no heading); at least
+    two vertices (a lone point is repeated)."""
+    p = dedupe(xy)
     return p if len(p) >= 2 else np.vstack([p, p])
 
 
@@ -133,10 +148,7 @@ def _shortest(roadmap: Roadmap, s: int, g: int) -> list[int]:
     dist, pred = dijkstra(graph, indices=s, return_predecessors=True)
     if not np.isfinite(dist[g]):
         raise PlanningError("no roadmap path between the two points")
-    seq = [g]
-    while seq[-1] != s:
-        seq.append(int(pred[seq[-1]]))
-    return seq[::-1]
+    return walk_predecessors(pred, s, g)[::-1]
 
 
 def segment_energy_J(cost: EdgeCostContext, x0: float, y0: float, x1: float, y1: float) -> float:

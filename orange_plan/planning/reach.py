@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from orange_plan.errors import InputError
 from orange_plan.mission import TimeLimitCheck, check_time_limit
 from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
-from orange_plan.planning.paths import clean_polyline, evaluate_path, path_gradient
+from orange_plan.planning.paths import clean_polyline, dedupe, evaluate_path, path_gradient
 from orange_plan.planning.roadmap import (
     EdgeCostContext,
     EnergyField,
@@ -385,12 +385,6 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     reason = _infeasible_reason(margin, reach.time_check(energy.duration_s), "round trip")
     return GoalResult(x, y, name, True, reason is None, to_goal, total - to_goal, res, margin,
                       energy.duration_s, trip, np.full(len(trip), float(c.speed_mps)), reason)
-
-
-def dedupe(xy) -> np.ndarray:
-    """Drop consecutive duplicate vertices (no padding)."""
-    p = np.asarray(xy, float).reshape(-1, 2)
-    return p[np.r_[True, np.hypot(*np.diff(p, axis=0).T) > 1e-9]]
 
 
 # --- fast field over many points ------------------------------------------------------------

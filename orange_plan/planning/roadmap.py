@@ -365,10 +365,17 @@ class EnergyField:
         """Vertex sequence of the best path, oriented in the direction of travel."""
         if not np.isfinite(self.energy_J[vertex]):
             raise PlanningError(f"vertex {vertex} is not connected to vertex {self.source}")
-        seq = [int(vertex)]
-        while seq[-1] != self.source:
-            seq.append(int(self.next_vertex[seq[-1]]))
+        seq = walk_predecessors(self.next_vertex, self.source, vertex)
         return seq if self.towards else seq[::-1]
+
+
+def walk_predecessors(pred: np.ndarray, source: int, vertex: int) -> list[int]:
+    """Vertices from ``vertex`` to ``source`` along Dijkstra's predecessors ``pred`` (the
+    vertex must be reached)."""
+    seq = [int(vertex)]
+    while seq[-1] != source:
+        seq.append(int(pred[seq[-1]]))
+    return seq
 
 
 def energy_field(roadmap: Roadmap, source: int, towards: bool) -> EnergyField:

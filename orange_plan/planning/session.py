@@ -56,7 +56,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -69,11 +69,11 @@ from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
 from orange_plan.identify.soc import SocCapacity
 from orange_plan.physics.pathcost import path_energy
-from orange_plan.physics.state import MotionState
 from orange_plan.planning.coverage import footprint
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import prepare_reach, reserve_J, way_home
-from orange_plan.telemetry.recording import motion_state, recording_from_frame
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 ACTIONS = ("continue", "replan", "return_home")
 DEPARTURE_Z = 3.0
@@ -212,8 +212,8 @@ class MissionSession:
         """The scenario model with the estimator's coefficients and covariance."""
         def build():
             est = self._estimator
-            return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta)),
-                                             est.cov)
+            return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta_)),
+                                             est.cov_)
         return self._per_batch("online_model", build)
 
     @property
@@ -322,8 +322,8 @@ class MissionSession:
         if len(history) >= 2:
             context = history.tail(len(frame) + CONTEXT_ROWS)
             rec = recording_from_frame(context, "samples")
-            state = motion_state(rec, self.ctx.world, sensor_rate_Hz=self.ctx.sensor_rate_Hz)
-            state = _tail(state, len(frame), len(rec.frame))
+            state = recording_state(rec, self.ctx.world, self.ctx.sensor_rate_Hz)
+            state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
             state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
             power = frame["power_W"].to_numpy(float)
             used_before = self.energy_used_J
@@ -691,13 +691,6 @@ def _polygon(value, what: str):
 
         raise InputError(f"map update: {what} is invalid: {explain_validity(geom)}")
     return geom
-
-
-def _tail(state: MotionState, n: int, total: int) -> MotionState:
-    """The last ``n`` samples of a per-sample MotionState of ``total`` samples."""
-    return MotionState(**{f.name: np.broadcast_to(np.asarray(getattr(state, f.name)),
-                                                   (total,))[total - n:]
-                          for f in fields(MotionState)})
 
 
 def _distance_to_segments(p, a, b) -> np.ndarray:

@@ -26,8 +26,9 @@ import numpy as np
 
 from orange_plan.errors import InputError, PlanningError
 from orange_plan.mission import check_time_limit
-from orange_plan.physics.pathcost import path_energy, subdivide
+from orange_plan.physics.pathcost import Steps, path_energy, subdivide
 from orange_plan.physics.state import MotionState
+from orange_plan.planning.paths import dedupe
 
 TIGHTEN_ROUNDS = 4
 """Re-solves allowed to bring the driven profile within a time limit or energy budget."""
@@ -36,28 +37,25 @@ FIELDS = ("length_m", "cos_t", "sin_t", "dir_x", "dir_y", "crr", "surface_code")
 
 
 @dataclass(frozen=True)
-class PathPieces:
-    """A path cut into N straight pieces with their terrain (the speed problem's data).
+class PathPieces(Steps):
+    """A path cut into N straight pieces with their terrain (the speed problem's data): the
+    ``physics.pathcost.Steps`` of one step per piece, with the pieces' end points.
 
     Attributes
     ----------
     xy_m : the N + 1 piece end points [m]
-    length_m : 3-D piece length [m]; cos_t, sin_t : grade [-]; dir_x, dir_y : direction [-]
-    crr : rolling coefficient at the piece midpoint [-]; surface_code : surface there
+    (and every ``Steps`` attribute: length_m, cos_t, sin_t, dir_x, dir_y, crr, surface_code)
     """
 
     xy_m: np.ndarray
-    length_m: np.ndarray
-    cos_t: np.ndarray
-    sin_t: np.ndarray
-    dir_x: np.ndarray
-    dir_y: np.ndarray
-    crr: np.ndarray
-    surface_code: np.ndarray
 
     @property
     def n(self) -> int:
         return len(self.length_m)
+
+    def values(self) -> dict[str, np.ndarray]:
+        """The per-piece arrays the speed problem is parametrised by (``FIELDS``)."""
+        return {f: np.asarray(getattr(self, f), float) for f in FIELDS}
 
 
 def cut_path(world, path_xy, n_pieces: int) -> PathPieces:
@@ -66,13 +64,10 @@ def cut_path(world, path_xy, n_pieces: int) -> PathPieces:
     Each original segment gets a number of pieces proportional to its length (at least one),
     so the pieces follow the path exactly.
     """
-    p = np.asarray(path_xy, float)
-    seg = np.hypot(*np.diff(p, axis=0).T)
-    keep = seg > 1e-9
-    if not keep.any():
+    p = dedupe(path_xy)
+    if len(p) < 2:
         raise InputError("the path has zero length")
-    p = np.vstack([p[:-1][keep], p[-1]])
-    seg = seg[keep]
+    seg = np.hypot(*np.diff(p, axis=0).T)
     if n_pieces < len(seg):
         raise InputError(f"n_pieces = {n_pieces} is fewer than the path's {len(seg)} segments")
     count = np.maximum(1, np.floor(seg / seg.sum() * n_pieces).astype(int))
@@ -86,9 +81,7 @@ def cut_path(world, path_xy, n_pieces: int) -> PathPieces:
         pts.extend(a + (b - a) * t)
     xy = np.array(pts)
     steps = subdivide(world, xy[:-1], xy[1:], step_m=np.inf)  # one step per piece
-    safe = np.where(steps.length_m > 0, steps.length_m, 1.0)
-    return PathPieces(xy, steps.length_m, steps.horiz_m / safe, steps.dz_m / safe, steps.dir_x,
-                      steps.dir_y, steps.crr, steps.surface_code.astype(float))
+    return PathPieces(**vars(steps), xy_m=xy)
 
 
 @dataclass(frozen=True)
@@ -150,6 +143,8 @@ class SpeedProfile:
     pieces_energy_J : energy as the NLP sees it (one step per piece) [J]; ``energy_J`` re-
         integrates with the SPEC §7 sub-steps when a World is given
     pieces_duration_s : mission time as the NLP sees it (constant speed per piece) [s]
+    objective : the solver's own objective at its optimum: energy [J] for "energy", mission
+        time [s] for "time" (the CasADi transcription, clip included)
     """
 
     xy_m: np.ndarray
@@ -160,6 +155,7 @@ class SpeedProfile:
     solve_seconds: float
     pieces_energy_J: float
     pieces_duration_s: float
+    objective: float = float("nan")
 
 
 class SpeedSolver:
@@ -192,11 +188,9 @@ class SpeedSolver:
         seg = self.model.segment_energy(state, par["length_m"], problem.duty_cycle)
         # Transcription of the no-recovery clip: max(0, F) is not differentiable and IPOPT
         # oscillates across its kink on descents; the epigraph s >= F, s >= 0 is exact at the
-        # optimum (minimising pushes s down to max(0, F)). With regen r:
-        # max(0, F) - r max(0, -F) = r F + (1 - r) max(0, F).
+        # optimum (minimising pushes s down to max(0, F)), and the model charges s in its place.
         force = self.model.traction_force_N(state)
-        regen = self.model._regen_fraction()
-        traversal = par["length_m"] * (regen * force + (1 - regen) * clipped)
+        traversal = par["length_m"] * self.model.charged_force_N(force, positive_part=clipped)
         energy = ca.sum1(seg.ancillary_J + traversal)
         time = ca.sum1(seg.mission_time_s)
         length = par["length_m"]
@@ -279,13 +273,12 @@ class SpeedSolver:
         pc = problem.pieces
         solver = self._solver(problem)
         no_limit = 1e30
-        p = np.concatenate([getattr(pc, f) for f in FIELDS]
-                           + [[no_limit if limit is None else limit]])
+        p = np.concatenate([*pc.values().values(), [no_limit if limit is None else limit]])
         x0 = warm_start if warm_start is not None else self._last.get(pc.n)
         if x0 is None:
             x0 = np.full(pc.n, 0.5 * (problem.v_min_mps + problem.v_max_mps))
         x0 = np.clip(x0, problem.v_min_mps, _piece_caps(problem))
-        force0 = self.model.traction_force_N(self._state(problem, x0, vars(pc)))
+        force0 = self.model.traction_force_N(self._state(problem, x0, pc.values()))
         n = pc.n
         lbx = np.r_[np.full(n, problem.v_min_mps), np.zeros(n)]
         ubx = np.r_[_piece_caps(problem), np.full(n, np.inf)]
@@ -297,7 +290,7 @@ class SpeedSolver:
             raise PlanningError(f"speed optimisation did not converge: {stats['return_status']}")
         speed = np.asarray(r["x"]).ravel()[:n]
         self._last[pc.n] = speed
-        e = self.model.segment_energy(self._state(problem, speed, vars(pc)), pc.length_m,
+        e = self.model.segment_energy(self._state(problem, speed, pc.values()), pc.length_m,
                                       problem.duty_cycle)
         pieces_J = float(np.sum(e.ancillary_J + e.traversal_J))
         pieces_s = float(np.sum(e.mission_time_s))
@@ -307,7 +300,7 @@ class SpeedSolver:
                                 problem.sensor_rate_Hz, problem.accel_max_mps2)
             energy, duration = exact.total_J, exact.duration_s
         return SpeedProfile(pc.xy_m, speed, energy, duration, int(stats["iter_count"]), seconds,
-                            pieces_J, pieces_s)
+                            pieces_J, pieces_s, float(r["f"]))
 
 
 def _piece_caps(problem: SpeedProblem) -> np.ndarray:

@@ -93,7 +93,7 @@ class ScenarioLibrary:
             Bad TOML, a map outside maps/, or anything ``load_context`` refuses.
         """
         from orange_plan.context import Context
-        from orange_plan.physics.builder import build_model
+        from orange_plan.model_builder import build_model
         from orange_plan.scenario import scenario_from_dict
         from orange_plan.world.terrain import World
 

@@ -33,22 +33,30 @@ maths, the map) comes from the scenario. Every table and key is optional::
 
 Notes
 -----
-Payload scales the mass-proportional coefficients (``physics.builder.MASS_COEFFICIENTS``:
-rolling, surface rolling, grade, inertia, rolling torque) by ``(m + extra) / m`` and, for a robot with a hover term, scales the hover
-power by ``((m + extra) / m) ** 1.5`` (momentum theory: induced power grows as weight^1.5).
+Payload scales the mass-proportional coefficients (``model_builder.LUMPED`` rows marked
+``mass``: rolling, surface rolling, grade, inertia, rolling torque) by ``(m + extra) / m``
+and, for a robot with a hover term, scales the hover power by ``((m + extra) / m) ** 1.5``
+(momentum theory: induced power grows as weight^1.5).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, close_match_hint
 from orange_plan.physics.profile import STOP_EVERY_S
-from orange_plan.physics.wind import wind_vector_mps
-from orange_plan.scenario import read_toml
+from orange_plan.physics.wind import wind_xy_mps
+from orange_plan.scenario import (
+    ABSENT,
+    BOOLEAN,
+    any_number,
+    check_table,
+    non_negative,
+    positive,
+    read_toml,
+)
 
 
 @dataclass(frozen=True)
@@ -64,8 +72,7 @@ class Wind:
     @property
     def mean_xy_mps(self) -> tuple[float, float]:
         """Mean wind vector (x east, y north) [m/s] (SPEC §7 convention)."""
-        wx, wy = wind_vector_mps(self.mean_mps, self.from_deg)
-        return float(wx), float(wy)
+        return wind_xy_mps(self.mean_mps, self.from_deg)
 
 
 @dataclass(frozen=True)
@@ -96,16 +103,17 @@ class Truth:
 
 
 _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
-    # table -> key -> (Truth field or "wind.<field>", check)
-    "wind": {"mean_mps": ("wind.mean_mps", ">=0"), "from_deg": ("wind.from_deg", "any"),
-             "gust_std_mps": ("wind.gust_std_mps", ">=0"), "gust_tau_s": ("wind.gust_tau_s", ">0"),
-             "recorded": ("wind.recorded", "bool")},
-    "payload": {"extra_kg": ("payload_kg", "any"), "from_s": ("payload_from_s", ">=0")},
-    "terrain": {"roughness_crr_std": ("roughness_crr_std", ">=0"),
-                "roughness_length_m": ("roughness_length_m", ">0")},
-    "battery": {"capacity_factor": ("capacity_factor", ">0")},
-    "noise": {"power_std_W": ("power_std_W", ">=0"), "position_std_m": ("position_std_m", ">=0")},
-    "stops": {"every_s": ("stop_every_s", ">0")},
+    # table -> key -> (Truth field or "wind.<field>", check of ``scenario.check_table``)
+    "wind": {"mean_mps": ("wind.mean_mps", non_negative), "from_deg": ("wind.from_deg", any_number),
+             "gust_std_mps": ("wind.gust_std_mps", non_negative),
+             "gust_tau_s": ("wind.gust_tau_s", positive), "recorded": ("wind.recorded", BOOLEAN)},
+    "payload": {"extra_kg": ("payload_kg", any_number), "from_s": ("payload_from_s", non_negative)},
+    "terrain": {"roughness_crr_std": ("roughness_crr_std", non_negative),
+                "roughness_length_m": ("roughness_length_m", positive)},
+    "battery": {"capacity_factor": ("capacity_factor", positive)},
+    "noise": {"power_std_W": ("power_std_W", non_negative),
+              "position_std_m": ("position_std_m", non_negative)},
+    "stops": {"every_s": ("stop_every_s", positive)},
 }
 
 
@@ -131,18 +139,13 @@ def truth_from_dict(data: dict, where: str = "truth") -> Truth:
     for table, content in data.items():
         if table not in tables:
             raise InputError(f"{where}: unknown table [{table}]" + close_match_hint(table, tables))
-        if not isinstance(content, dict):
-            raise InputError(f"{where}: [{table}] must be a table")
         if table == "coefficients":
-            values["coefficients"] = {k: _number(v, f"coefficients.{k}", "any", where)
-                                      for k, v in content.items()}
+            schema = {k: (ABSENT, any_number) for k in content} if isinstance(content, dict) else {}
+            values["coefficients"] = check_table(content, schema, table, where, InputError)
             continue
-        for key, raw in content.items():
-            if key not in _SCHEMA[table]:
-                raise InputError(f"{where}: unknown key '{table}.{key}'"
-                                 + close_match_hint(key, _SCHEMA[table]))
-            target, check = _SCHEMA[table][key]
-            value = _number(raw, f"{table}.{key}", check, where)
+        schema = {key: (ABSENT, check) for key, (_, check) in _SCHEMA[table].items()}
+        for key, value in check_table(content, schema, table, where, InputError).items():
+            target = _SCHEMA[table][key][0]
             if target.startswith("wind."):
                 wind[target[5:]] = value
             else:
@@ -150,16 +153,3 @@ def truth_from_dict(data: dict, where: str = "truth") -> Truth:
     if wind:
         values["wind"] = Wind(**wind)
     return Truth(**values)
-
-
-def _number(value, dotted: str, check: str, where: str):
-    if check == "bool":
-        if not isinstance(value, bool):
-            raise InputError(f"{where}: {dotted} must be true or false, got {value!r}")
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"{where}: {dotted} must be a finite number, got {value!r}")
-    if (check == ">=0" and value < 0) or (check == ">0" and value <= 0):
-        bound = ">= 0" if check == ">=0" else "> 0"
-        raise InputError(f"{where}: {dotted} = {value!r} must be {bound}")
-    return float(value)

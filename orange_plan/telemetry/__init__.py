@@ -5,19 +5,19 @@ from orange_plan.telemetry.recording import (
     Recording,
     integrate_J,
     load_recording,
-    motion_state,
     recording_from_frame,
     split_blocks,
     write_recording,
 )
+from orange_plan.telemetry.state import recording_state
 
 __all__ = [
     "DataIssue",
     "Recording",
     "integrate_J",
     "load_recording",
-    "motion_state",
     "recording_from_frame",
+    "recording_state",
     "split_blocks",
     "write_recording",
 ]

@@ -1,5 +1,8 @@
 """Recordings: the telemetry table of SPEC §3, loaded, checked, cleaned and completed.
 
+(The time-series maths of rule 13 is ``telemetry.derive``; a recording's MotionState is
+``telemetry.state.recording_state``.)
+
 A recording is one row per sample with ``t_s`` and the battery power (``power_W``, or
 ``voltage_V`` and ``current_A``) and the motion (``x_m``/``y_m`` or ``v_mps``). Loading
 applies the rules below, in this order. Every rule that changes or drops something is
@@ -38,17 +41,16 @@ Rules
     ``frame.attrs["import_notes"]``, is reported as it is.
 13. Derived channels (``derived``, reported with the rows they fill):
     ``power_W = voltage_V * current_A``; positions -> speed: centred moving average of
-    ``x_m``/``y_m`` over ``SMOOTH_WINDOW_S`` = 0.5 s (counted in samples at the median
+    ``x_m``/``y_m`` over ``derive.SMOOTH_WINDOW_S`` = 0.5 s (counted in samples at the median
     interval: at least 3, odd; ends padded by point reflection so a steady trend passes
     unchanged), then central differences (``numpy.gradient`` on the time stamps); yaw rate: heading ``atan2(dy, dx)`` of the smoothed positions, unwrapped,
-    held while the speed is below ``STILL_SPEED_MPS``, central differences; acceleration:
+    held while the speed is below ``derive.STILL_SPEED_MPS``, central differences; acceleration:
     central differences of the speed after the same moving average. Without positions
     and without ``yaw_rate_radps`` the yaw rate is 0 (reported).
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,8 +60,14 @@ import pandas as pd
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import RecordingError
 from orange_plan.paths import csv_delimiter_hint, require_file
-from orange_plan.physics.state import MotionState
-from orange_plan.physics.wind import wind_vector_mps
+from orange_plan.telemetry.derive import (
+    STILL_SPEED_MPS,
+    derivative,
+    gap_free_pieces,
+    position_heading_rad,
+    smooth_pieces,
+    window_samples,
+)
 
 SPEC_COLUMNS = (
     "t_s", "power_W", "voltage_V", "current_A", "x_m", "y_m", "z_m", "v_mps",
@@ -79,12 +87,6 @@ REBASE_T0_S = 1e7
 """A first stamp beyond this is taken as epoch seconds and shifted to 0 [s]."""
 GAP_FACTOR = 5.0
 """An interval longer than this times the median interval is a gap [-]."""
-SMOOTH_WINDOW_S = 0.5
-"""Centred moving-average window before differentiating positions or speed [s]."""
-STILL_SPEED_MPS = 0.05
-"""Below this speed the heading of positions is noise: it is held [m/s]."""
-GRADE_WINDOW_M = 20.0
-"""Distance window of the moving average on elevation before taking the grade [m]."""
 
 READ_EXTENSIONS = (".csv", ".csv.gz", ".parquet", ".pq")
 
@@ -288,7 +290,7 @@ def recording_from_frame(df: pd.DataFrame, source: str = "<frame>") -> Recording
     frame = _fill_optional(frame, issues)
     t = frame["t_s"].to_numpy(float)
     gap_threshold_s = _gap_threshold(t, issues, frame["_row"].to_numpy())
-    pieces = _pieces(t, gap_threshold_s)
+    pieces = gap_free_pieces(t, gap_threshold_s)
     frame = _derive(frame, pieces, issues)
     frame = _order_columns(frame.drop(columns="_row"))
     return Recording(frame, source, tuple(issues), gap_threshold_s)
@@ -439,80 +441,20 @@ def _gap_threshold(t: np.ndarray, issues: list, rows: np.ndarray) -> float:
     return threshold
 
 
-def _pieces(t: np.ndarray, gap_threshold_s: float) -> list[slice]:
-    """Gap-free runs of samples, as slices."""
-    cuts = np.flatnonzero(np.diff(t) > gap_threshold_s) + 1
-    bounds = [0, *cuts.tolist(), len(t)]
-    return [slice(a, b) for a, b in itertools.pairwise(bounds)]
-
-
 # --- derived channels ---------------------------------------------------------------------------
-
-
-def _window_samples(t: np.ndarray) -> int:
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    n = max(3, round(SMOOTH_WINDOW_S / dt)) if dt > 0 else 3
-    return n + 1 - n % 2  # odd, so the average is centred
-
-
-def smooth(values: np.ndarray, window: int) -> np.ndarray:
-    """Centred moving average over ``window`` samples (odd).
-
-    The ends are padded by point reflection (``2 v0 - v[k]``), so a steady trend (constant
-    speed, constant slope) passes unchanged up to the first and last sample.
-    """
-    v = np.asarray(values, dtype=float)
-    half = min(window // 2, len(v) - 1)
-    if half <= 0:
-        return v.copy()
-    head = 2.0 * v[0] - v[half:0:-1]
-    tail = 2.0 * v[-1] - v[-2:-half - 2:-1]
-    padded = np.concatenate([head, v, tail])
-    kernel = np.full(2 * half + 1, 1.0 / (2 * half + 1))
-    return np.convolve(padded, kernel, mode="valid")
-
-
-def _derivative(values: np.ndarray, t: np.ndarray, pieces: list[slice]) -> np.ndarray:
-    """Central differences per gap-free piece (one-sided at piece ends; 0 for 1 sample)."""
-    out = np.zeros_like(values, dtype=float)
-    for p in pieces:
-        if p.stop - p.start >= 2:
-            out[p] = np.gradient(values[p], t[p])
-    return out
-
-
-def _smooth_pieces(values: np.ndarray, window: int, pieces: list[slice]) -> np.ndarray:
-    out = np.array(values, dtype=float)
-    for p in pieces:
-        out[p] = smooth(values[p], window)
-    return out
-
-
-def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None) -> np.ndarray:
-    """Unwrapped heading of smoothed positions, held where the robot stands still [rad]."""
-    t = np.asarray(t_s, float)
-    pieces = pieces or [slice(0, len(t))]
-    w = _window_samples(t)
-    xs = _smooth_pieces(np.asarray(x_m, float), w, pieces)
-    ys = _smooth_pieces(np.asarray(y_m, float), w, pieces)
-    vx, vy = _derivative(xs, t, pieces), _derivative(ys, t, pieces)
-    speed = np.hypot(vx, vy) if speed_mps is None else np.asarray(speed_mps, float)
-    heading = pd.Series(np.where(speed > STILL_SPEED_MPS, np.arctan2(vy, vx), np.nan))
-    heading = heading.ffill().bfill().fillna(0.0).to_numpy()
-    return np.unwrap(heading)
 
 
 def _derive(frame: pd.DataFrame, pieces: list[slice], issues: list) -> pd.DataFrame:
     t = frame["t_s"].to_numpy(float)
-    n, w = len(frame), _window_samples(t)
+    n, w = len(frame), window_samples(t)
     has_xy = "x_m" in frame.columns and "y_m" in frame.columns
     if "power_W" not in frame.columns:
         frame["power_W"] = frame["voltage_V"] * frame["current_A"]
         issues.append(DataIssue("derived", n, 0, "power_W = voltage_V x current_A"))
     if "v_mps" not in frame.columns:
-        xs = _smooth_pieces(frame["x_m"].to_numpy(float), w, pieces)
-        ys = _smooth_pieces(frame["y_m"].to_numpy(float), w, pieces)
-        frame["v_mps"] = np.hypot(_derivative(xs, t, pieces), _derivative(ys, t, pieces))
+        xs = smooth_pieces(frame["x_m"].to_numpy(float), w, pieces)
+        ys = smooth_pieces(frame["y_m"].to_numpy(float), w, pieces)
+        frame["v_mps"] = np.hypot(derivative(xs, t, pieces), derivative(ys, t, pieces))
         issues.append(DataIssue("derived", n, 0, f"v_mps from positions: {w}-sample centred "
                                 "moving average, then central differences"))
     v = frame["v_mps"].to_numpy(float)
@@ -524,7 +466,7 @@ def _derive(frame: pd.DataFrame, pieces: list[slice], issues: list) -> pd.DataFr
         if has_xy:
             heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces,
                                            frame["v_mps"].to_numpy(float))
-            frame["yaw_rate_radps"] = _derivative(heading, t, pieces)
+            frame["yaw_rate_radps"] = derivative(heading, t, pieces)
             rule = (f"yaw_rate_radps from the heading of positions ({w}-sample moving "
                     f"average, unwrapped, held below {STILL_SPEED_MPS} m/s), central differences")
         else:
@@ -532,8 +474,8 @@ def _derive(frame: pd.DataFrame, pieces: list[slice], issues: list) -> pd.DataFr
             rule = "no yaw_rate_radps and no positions: yaw rate set to 0"
         issues.append(DataIssue("derived", n, 0, rule))
     if "accel_mps2" not in frame.columns:
-        vs = _smooth_pieces(frame["v_mps"].to_numpy(float), w, pieces)
-        frame["accel_mps2"] = _derivative(vs, t, pieces)
+        vs = smooth_pieces(frame["v_mps"].to_numpy(float), w, pieces)
+        frame["accel_mps2"] = derivative(vs, t, pieces)
         issues.append(DataIssue("derived", n, 0, f"accel_mps2 from v_mps: {w}-sample centred "
                                 "moving average, then central differences"))
     return frame
@@ -544,7 +486,7 @@ def _order_columns(frame: pd.DataFrame) -> pd.DataFrame:
     return frame[first + [c for c in frame.columns if c not in first]]
 
 
-# --- blocks and motion state ---------------------------------------------------------------------
+# --- blocks ---------------------------------------------------------------------
 
 
 def split_blocks(recording: Recording, n_blocks: int) -> list[Recording]:
@@ -569,139 +511,3 @@ def split_blocks(recording: Recording, n_blocks: int) -> list[Recording]:
         blocks.append(Recording(part, f"{recording.source}[block {k + 1}/{n_blocks}]",
                                 recording.issues, recording.gap_threshold_s))
     return blocks
-
-
-def motion_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
-                 default_crr: float | None = None,
-                 grade_window_m: float = GRADE_WINDOW_M) -> MotionState:
-    """Per-sample MotionState of a recording, for ``EnergyModel.power_W`` and its Jacobian.
-
-    Parameters
-    ----------
-    recording : the cleaned recording
-    world : optional World: rolling coefficient and surface at (x, y), surface names, wind
-    sensor_rate_Hz : used where the recording has no ``sensor_rate_Hz`` column [Hz]
-    default_crr : rolling coefficient where nothing else says [-]; default the world's
-        default (map default surface, else robot.crr), else 0
-    grade_window_m : distance window of the moving average on ``z_m`` [m]
-
-    Returns
-    -------
-    MotionState
-        Arrays of one value per sample.
-
-    Notes
-    -----
-    * Grade: ``z_m`` resampled on distance travelled (trapezoid of ``v_mps``), moving
-      average over ``grade_window_m``, differentiated; ``sin_t = s/sqrt(1+s^2)``. No
-      ``z_m``: flat.
-    * Direction: heading of positions (held while standing); no positions: (1, 0).
-    * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological, SPEC §7), else the
-      world's wind, else none.
-    * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
-      looked up among the map's surfaces (unknown labels: default); else the default.
-    * Cabin HVAC power: the ``hvac_W`` column (a missing value counts as 0), else 0; likewise
-      the requested heating power from ``heater_request_W``.
-      Elapsed time (warm-up drift): ``t_s - t_s[0]``.
-    """
-    frame = recording.frame
-    n = len(frame)
-    t = recording.t_s
-    speed = np.abs(frame["v_mps"].to_numpy(float))
-    pieces = _pieces(t, recording.gap_threshold_s)
-    cos_t, sin_t = _grade(recording, speed, grade_window_m)
-    dir_x, dir_y = _direction(frame, t, pieces, speed)
-    wind_x, wind_y = _wind(frame, world, n)
-    crr, code = _rolling(frame, world, default_crr, n)
-    if "sensor_rate_Hz" in frame.columns:
-        rate = frame["sensor_rate_Hz"].to_numpy(float)
-    else:
-        rate = np.full(n, float(sensor_rate_Hz))
-    return MotionState(
-        speed_mps=speed, cos_t=cos_t, sin_t=sin_t, dir_x=dir_x, dir_y=dir_y,
-        wind_x_mps=wind_x, wind_y_mps=wind_y, crr=crr,
-        accel_mps2=frame["accel_mps2"].to_numpy(float),
-        yaw_rate_radps=frame["yaw_rate_radps"].to_numpy(float),
-        sensor_rate_Hz=rate, surface_code=code,
-        hvac_W=_column_or_zero(frame, "hvac_W"),
-        heater_request_W=_column_or_zero(frame, "heater_request_W"),
-        elapsed_s=t - t[0],
-    )
-
-
-def _column_or_zero(frame: pd.DataFrame, column: str) -> np.ndarray:
-    """A column as floats with missing values as 0, or zeros when the column is absent."""
-    if column not in frame.columns:
-        return np.zeros(len(frame))
-    return frame[column].fillna(0.0).to_numpy(float)
-
-
-def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:
-    """Cumulative distance travelled at each sample (trapezoid of speed, gaps skipped) [m]."""
-    speed = recording.frame["v_mps"].to_numpy(float) if speed_mps is None else speed_mps
-    return cumulative_J(recording, np.abs(speed))
-
-
-def _grade(recording: Recording, speed: np.ndarray, window_m: float):
-    n = len(speed)
-    if not recording.has("z_m"):
-        return np.ones(n), np.zeros(n)
-    s = distance_along_m(recording, speed)
-    z = recording.frame["z_m"].to_numpy(float)
-    if s[-1] <= 0:
-        return np.ones(n), np.zeros(n)
-    step_m = max(s[-1] / 200_000.0, min(0.5, window_m / 10.0))
-    grid = np.arange(0.0, s[-1] + step_m, step_m)
-    # Standing still gives many z at one distance; np.interp takes them in order, fine for
-    # a moving average over metres.
-    z_grid = np.interp(grid, s, z)
-    window = max(3, round(window_m / step_m))
-    z_smooth = smooth(z_grid, window + 1 - window % 2)
-    slope = np.interp(s, grid, np.gradient(z_smooth, step_m))
-    hyp = np.sqrt(1.0 + slope**2)
-    return 1.0 / hyp, slope / hyp
-
-
-def _direction(frame: pd.DataFrame, t, pieces, speed):
-    if "x_m" in frame.columns and "y_m" in frame.columns:
-        heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces, speed)
-        return np.cos(heading), np.sin(heading)
-    n = len(frame)
-    return np.ones(n), np.zeros(n)
-
-
-def _wind(frame: pd.DataFrame, world, n: int):
-    if "wind_mps" in frame.columns and "wind_from_deg" in frame.columns:
-        return wind_vector_mps(frame["wind_mps"].to_numpy(float),
-                               frame["wind_from_deg"].to_numpy(float))
-    if world is not None:
-        wx, wy = world.wind_xy_mps
-        return np.full(n, float(wx)), np.full(n, float(wy))
-    return np.zeros(n), np.zeros(n)
-
-
-def _rolling(frame: pd.DataFrame, world, default_crr, n: int):
-    if default_crr is None:
-        default_crr = world.default_crr if world is not None else 0.0
-    crr = np.full(n, float(default_crr))
-    code = np.full(n, -1, dtype=int)
-    if world is None:
-        return crr, code
-    if "x_m" in frame.columns and "y_m" in frame.columns:
-        x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
-        code = world.surface_code_at(x, y)
-        crr = np.where(code >= 0, world.crr_at(x, y), float(default_crr))
-        return crr, code
-    if "surface" in frame.columns:
-        names = world.map.surface_names
-        crr_by_name = {s.name: s.crr for s in world.map.surfaces}  # last feature wins
-        labels = frame["surface"].astype(str).str.strip().to_numpy()
-        for name in names:
-            hit = np.char.lower(labels.astype(str)) == name.lower()
-            crr[hit] = crr_by_name[name]
-            code[hit] = names.index(name)
-        default_name = getattr(world, "default_surface_name", None)
-        if default_name:
-            hit = (np.char.lower(labels.astype(str)) == default_name.lower()) & (code < 0)
-            crr[hit] = float(default_crr)
-    return crr, code

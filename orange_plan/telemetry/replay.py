@@ -1,7 +1,7 @@
 """Replay a recording's motion through an EnergyModel: predicted vs recorded power and energy.
 
 The prediction uses nothing but ``EnergyModel.power_W`` on the recording's per-sample
-MotionState (``motion_state``), so it is the same physics the planner uses. Energies are
+MotionState (``telemetry.state.recording_state``), so it is the same physics the planner uses. Energies are
 trapezoid integrals over time with the recording's gaps skipped on both sides. The predicted
 energy's standard deviation is the model's predictive one (``EnergyModel.
 predictive_variance_J2``: coefficient covariance along the run's energy gradient, plus the
@@ -17,7 +17,8 @@ import numpy as np
 from orange_plan.errors import InputError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
-from orange_plan.telemetry.recording import Recording, cumulative_J, integrate_J, motion_state
+from orange_plan.telemetry.recording import Recording, cumulative_J, integrate_J
+from orange_plan.telemetry.state import recording_state
 
 
 @dataclass(frozen=True)
@@ -88,8 +89,7 @@ def run_energy(recording: Recording, model: EnergyModel, state: MotionState) -> 
     ----------
     recording : gives the times and gaps
     model : the energy model
-    state : per-sample motion state of the recording (``motion_state`` or
-        ``identify.calibrate.recording_state``)
+    state : per-sample motion state of the recording (``telemetry.state.recording_state``)
 
     Returns
     -------
@@ -122,7 +122,7 @@ def replay(recording: Recording, model: EnergyModel, world=None,
     Replay
     """
     recorded = recording.frame["power_W"].to_numpy(float)
-    state = motion_state(recording, world, sensor_rate_Hz=sensor_rate_Hz)
+    state = recording_state(recording, world, sensor_rate_Hz)
     predicted = run_energy(recording, model, state)
     e_rec = float(cumulative_J(recording, recorded)[-1])
     e_pred = predicted.energy_J

@@ -15,7 +15,7 @@ def plot_online_traces(traces, path: str | Path) -> Path:
 
     Parameters
     ----------
-    traces : ``identify.bench.OnlineTrace`` objects
+    traces : ``bench.identify.OnlineTrace`` objects
     path : PNG to write (atomically: temporary file, then rename)
     """
     import matplotlib

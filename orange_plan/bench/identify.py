@@ -28,8 +28,21 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.context import load_context
+from orange_plan.identify.calibrate import Calibrator
 from orange_plan.identify.online import OnlineEstimator, stream
+from orange_plan.model_builder import model_with_terms
+from orange_plan.physics.pathcost import path_energy
+from orange_plan.physics.range import radial_probe_paths
+from orange_plan.planning.reach import reserve_J
+from orange_plan.scenario import Reserve
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import truth_from_dict
+from orange_plan.telemetry.importers import FORMATS
+from orange_plan.telemetry.recording import cumulative_J, recording_from_frame
+from orange_plan.telemetry.replay import run_energy
+from orange_plan.telemetry.state import recording_state
 
 N_RAYS = 8
 
@@ -101,9 +114,6 @@ def accuracy_pct(d_pred: float, d_true: float) -> float:
 def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None):
     """The a priori route: out-and-back rays from home joined into one closed polyline, each
     ray cut at ``max_ray_m`` from home."""
-    from orange_plan.physics.range import radial_probe_paths
-    from orange_plan.sim.route import Route
-
     rays = radial_probe_paths(ctx.world, n_rays)
     if max_ray_m is not None:
         for r in rays:
@@ -117,8 +127,6 @@ def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None):
 
 def offline_range_m(ctx, route) -> float:
     """Generalised offline range (Eq. 11) with the path integral taken on ``route`` [m]."""
-    from orange_plan.physics.pathcost import path_energy
-
     speed = route.speed_mps[:-1]
     e = path_energy(ctx.model, ctx.world, route.xy_m, speed, ctx.duty_cycle, ctx.sensor_rate_Hz)
     length = float(np.sum(np.hypot(*np.diff(route.xy_m, axis=0).T)))
@@ -166,15 +174,11 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
 
     Returns (OnlineTrace, list of OnlineEstimate, SimResult, route).
     """
-    from orange_plan.sim.simulator import simulate
-    from orange_plan.telemetry.recording import motion_state, recording_from_frame
-    from orange_plan.telemetry.replay import run_energy
-
     route = bench_route(ctx)
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
                    to_depletion=True)
     rec = recording_from_frame(sim.frame, f"{ctx.scenario.name} seed {seed}")
-    state = motion_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz)
     est = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J, memory_s, window_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s,
                      until_s=until_fraction * sim.duration_s)
@@ -204,8 +208,6 @@ def online_run(ctx, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
 def online_benchmark(scenario_dir: str | Path, scenarios=None, seeds=(0, 1, 2),
                      progress=None) -> list[OnlineRow]:
     """Offline vs online range accuracy on simulated runs to depletion (module docstring)."""
-    from orange_plan.context import load_context
-
     names = list(BENCH_TRUTHS) if scenarios is None else list(scenarios)
     rows = []
     for name in names:
@@ -307,9 +309,6 @@ def count_runs(data_dir: str | Path, datasets) -> int:
 
 def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
     """Import and check every run matching ``pattern`` under ``data_dir`` (sorted by path)."""
-    from orange_plan.telemetry.importers import FORMATS
-    from orange_plan.telemetry.recording import recording_from_frame
-
     paths = sorted(Path(data_dir).glob(pattern))
     return [recording_from_frame(FORMATS[fmt](p), f"{p.parent.name}/{p.name}") for p in paths]
 
@@ -317,11 +316,10 @@ def load_runs(data_dir: str | Path, fmt: str, pattern: str) -> list:
 def whole_run_prediction(model, rec, ctx, settings: dict):
     """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) and its
     predictive standard deviation (``telemetry.replay.RunEnergy``)."""
-    from orange_plan.identify.calibrate import recording_state
-    from orange_plan.telemetry.replay import run_energy
 
-    state = recording_state(rec, ctx, settings.get("grade_window_m"),
-                            settings.get("yaw_rate_column"))
+    state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz,
+                            grade_window_m=settings.get("grade_window_m"),
+                            yaw_rate_column=settings.get("yaw_rate_column"))
     return run_energy(rec, model, state)
 
 
@@ -333,8 +331,6 @@ def whole_run_energy_J(model, rec, ctx, settings: dict) -> float:
 def reserve_exceeded(recorded_J, predicted_J, sd_J, confidence: float) -> np.ndarray:
     """True where a recorded energy exceeds predicted + the ``confidence`` reserve, the
     reserve sized exactly as the planner sizes it (``planning.reach.reserve_J``)."""
-    from orange_plan.planning.reach import reserve_J
-    from orange_plan.scenario import Reserve
 
     sd = np.asarray(sd_J, float)
     reserve = reserve_J(Reserve("confidence", confidence), 0.0, sd**2)
@@ -363,11 +359,9 @@ def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
     so far plus the current coefficients' prediction for the rest of the motion (the route
     ahead is known, as in a planned mission). Errors are (predicted - recorded) / recorded.
     """
-    from orange_plan.identify.calibrate import recording_state
-    from orange_plan.telemetry.recording import cumulative_J
-
-    state = recording_state(rec, ctx, settings.get("grade_window_m"),
-                            settings.get("yaw_rate_column"))
+    state = recording_state(rec, ctx.world, ctx.sensor_rate_Hz,
+                            grade_window_m=settings.get("grade_window_m"),
+                            yaw_rate_column=settings.get("yaw_rate_column"))
     t, power = rec.t_s, rec.frame["power_W"].to_numpy(float)
     duration = float(t[-1] - t[0])
     est = OnlineEstimator(model, ctx.scenario.battery.usable_J, memory_s, memory_s)
@@ -388,8 +382,6 @@ def calibration_benchmark(data_dir: str | Path, scenario_dir: str | Path, datase
                           progress=None) -> list[CalibrationRow]:
     """Two-fold run-level hold-out: fit on every other run (sorted by name), predict the
     whole-run energy of the others, then swap. Errors are (predicted - recorded) / recorded."""
-    from orange_plan.context import load_context
-    from orange_plan.identify.calibrate import Calibrator, model_with_terms
 
     rows = []
     for name in datasets or CALIBRATION_CASES:

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from orange_plan.planning.gridref import grid_graph
+from orange_plan.bench.gridref import grid_graph
 from orange_plan.planning.paths import bitstar_path, evaluate_path, roadmap_path
 from orange_plan.planning.reach import prepare_reach, query_points
 from orange_plan.planning.speed import SpeedSolver, cut_path, speed_problem

@@ -1,0 +1,75 @@
+"""Derivation on a recording's time series: gap-free pieces, centred moving averages,
+central differences and the heading of positions (rule 13 of ``telemetry.recording``)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pandas as pd
+
+SMOOTH_WINDOW_S = 0.5
+"""Centred moving-average window before differentiating positions or speed [s]."""
+STILL_SPEED_MPS = 0.05
+"""Below this speed the heading of positions is noise: it is held [m/s]."""
+
+
+def gap_free_pieces(t: np.ndarray, gap_threshold_s: float) -> list[slice]:
+    """Gap-free runs of samples, as slices."""
+    cuts = np.flatnonzero(np.diff(t) > gap_threshold_s) + 1
+    bounds = [0, *cuts.tolist(), len(t)]
+    return [slice(a, b) for a, b in itertools.pairwise(bounds)]
+
+
+def window_samples(t: np.ndarray) -> int:
+    """Samples in ``SMOOTH_WINDOW_S`` at the median interval: at least 3, odd."""
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    n = max(3, round(SMOOTH_WINDOW_S / dt)) if dt > 0 else 3
+    return n + 1 - n % 2  # odd, so the average is centred
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average over ``window`` samples (odd).
+
+    The ends are padded by point reflection (``2 v0 - v[k]``), so a steady trend (constant
+    speed, constant slope) passes unchanged up to the first and last sample.
+    """
+    v = np.asarray(values, dtype=float)
+    half = min(window // 2, len(v) - 1)
+    if half <= 0:
+        return v.copy()
+    head = 2.0 * v[0] - v[half:0:-1]
+    tail = 2.0 * v[-1] - v[-2:-half - 2:-1]
+    padded = np.concatenate([head, v, tail])
+    kernel = np.full(2 * half + 1, 1.0 / (2 * half + 1))
+    return np.convolve(padded, kernel, mode="valid")
+
+
+def derivative(values: np.ndarray, t: np.ndarray, pieces: list[slice]) -> np.ndarray:
+    """Central differences per gap-free piece (one-sided at piece ends; 0 for 1 sample)."""
+    out = np.zeros_like(values, dtype=float)
+    for p in pieces:
+        if p.stop - p.start >= 2:
+            out[p] = np.gradient(values[p], t[p])
+    return out
+
+
+def smooth_pieces(values: np.ndarray, window: int, pieces: list[slice]) -> np.ndarray:
+    out = np.array(values, dtype=float)
+    for p in pieces:
+        out[p] = smooth(values[p], window)
+    return out
+
+
+def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None) -> np.ndarray:
+    """Unwrapped heading of smoothed positions, held where the robot stands still [rad]."""
+    t = np.asarray(t_s, float)
+    pieces = pieces or [slice(0, len(t))]
+    w = window_samples(t)
+    xs = smooth_pieces(np.asarray(x_m, float), w, pieces)
+    ys = smooth_pieces(np.asarray(y_m, float), w, pieces)
+    vx, vy = derivative(xs, t, pieces), derivative(ys, t, pieces)
+    speed = np.hypot(vx, vy) if speed_mps is None else np.asarray(speed_mps, float)
+    heading = pd.Series(np.where(speed > STILL_SPEED_MPS, np.arctan2(vy, vx), np.nan))
+    heading = heading.ffill().bfill().fillna(0.0).to_numpy()
+    return np.unwrap(heading)

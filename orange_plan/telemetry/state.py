@@ -1,0 +1,203 @@
+"""One path from a recording to the model's input: ``recording_state``.
+
+predict (replay), calibrate, the online estimator (mission session, benchmarks) and
+diagnosis all read a recording's motion through this function, so they see the same
+wheels-up rows, the same yaw rate and the same operating-condition channels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from orange_plan.errors import InputError
+from orange_plan.physics.state import CHANNELS, MotionState
+from orange_plan.physics.wind import wind_vector_mps
+from orange_plan.telemetry.derive import gap_free_pieces, position_heading_rad, smooth
+from orange_plan.telemetry.recording import Recording, cumulative_J
+
+GRADE_WINDOW_M = 20.0
+"""Distance window of the moving average on elevation before taking the grade [m]."""
+WHEELS_UP_COLUMN = "wheels_up"
+"""Optional recording column: true where the robot runs with its wheels in the air."""
+DERIVED_CHANNELS = {"elapsed_s": lambda recording: recording.t_s - recording.t_s[0]}
+"""Channels computed from the table itself; every other declared channel is read from the
+recording column of its name (a missing value or column counts as 0)."""
+
+
+def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
+                    default_crr: float | None = None, grade_window_m: float | None = None,
+                    yaw_rate_column: str | None = None) -> MotionState:
+    """Per-sample MotionState of a recording, for ``EnergyModel.power_W`` and its Jacobian.
+
+    Parameters
+    ----------
+    recording : the cleaned recording
+    world : optional World: rolling coefficient and surface at (x, y), surface names, wind
+    sensor_rate_Hz : used where the recording has no ``sensor_rate_Hz`` column [Hz]
+    default_crr : rolling coefficient where nothing else says [-]; default the world's
+        default (map default surface, else robot.crr), else 0
+    grade_window_m : distance window of the moving average on ``z_m`` [m]; None:
+        ``GRADE_WINDOW_M`` (suits GPS/DEM elevation outdoors; use ~1 m on a lab ramp)
+    yaw_rate_column : take the yaw rate from this column instead of ``yaw_rate_radps``
+        (e.g. BorealTC's ``wheel_yaw_rate_radps``: skid-steer scrub follows the wheels)
+
+    Returns
+    -------
+    MotionState
+        Arrays of one value per sample.
+
+    Raises
+    ------
+    InputError
+        ``yaw_rate_column`` is not in the recording.
+
+    Notes
+    -----
+    * Grade: ``z_m`` resampled on distance travelled (trapezoid of ``v_mps``), moving
+      average over ``grade_window_m``, differentiated; ``sin_t = s/sqrt(1+s^2)``. No
+      ``z_m``: flat.
+    * Direction: heading of positions (held while standing); no positions: (1, 0).
+    * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological, SPEC §7), else the
+      world's wind, else none.
+    * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
+      looked up among the map's surfaces (unknown labels: default); else the default.
+    * Channels (``physics.state.CHANNELS``, e.g. cabin HVAC power, the requested heating
+      power): the column of the channel's name, a missing value counting as 0; elapsed time
+      (warm-up drift): ``t_s - t_s[0]``.
+    * Wheels up (``wheels_up`` column true): no speed over ground, grade, acceleration or
+      turning on those rows (bench tests of the drivetrain draw only its idle power).
+    """
+    frame = recording.frame
+    n = len(frame)
+    t = recording.t_s
+    speed = np.abs(frame["v_mps"].to_numpy(float))
+    pieces = gap_free_pieces(t, recording.gap_threshold_s)
+    cos_t, sin_t = _grade(recording, speed, GRADE_WINDOW_M if grade_window_m is None
+                          else grade_window_m)
+    dir_x, dir_y = _direction(frame, t, pieces, speed)
+    wind_x, wind_y = _wind(frame, world, n)
+    crr, code = _rolling(frame, world, default_crr, n)
+    if "sensor_rate_Hz" in frame.columns:
+        rate = frame["sensor_rate_Hz"].to_numpy(float)
+    else:
+        rate = np.full(n, float(sensor_rate_Hz))
+    channels = {name: DERIVED_CHANNELS[name](recording) if name in DERIVED_CHANNELS
+                else _column_or_zero(frame, name) for name in CHANNELS}
+    state = MotionState(
+        speed_mps=speed, cos_t=cos_t, sin_t=sin_t, dir_x=dir_x, dir_y=dir_y,
+        wind_x_mps=wind_x, wind_y_mps=wind_y, crr=crr,
+        accel_mps2=frame["accel_mps2"].to_numpy(float),
+        yaw_rate_radps=_yaw_rate(recording, yaw_rate_column),
+        sensor_rate_Hz=rate, surface_code=code, channels=channels,
+    )
+    wheels = wheels_up(recording)
+    return _no_traction(state, wheels) if wheels.any() else state
+
+
+def _yaw_rate(recording: Recording, column: str | None) -> np.ndarray:
+    if column is None:
+        return recording.frame["yaw_rate_radps"].to_numpy(float)
+    if column not in recording.frame.columns:
+        raise InputError(f"{recording.source}: no column '{column}' for the yaw rate")
+    return recording.frame[column].to_numpy(float)
+
+
+def wheels_up(recording: Recording) -> np.ndarray:
+    """True on rows whose ``wheels_up`` column says so (1, true, yes); all False without it."""
+    if WHEELS_UP_COLUMN not in recording.frame.columns:
+        return np.zeros(len(recording.frame), bool)
+    col = recording.frame[WHEELS_UP_COLUMN]
+    if col.dtype == object:
+        return col.astype(str).str.strip().str.lower().isin(["1", "true", "yes"]).to_numpy()
+    return col.fillna(0).to_numpy(float) != 0
+
+
+def _no_traction(state: MotionState, mask: np.ndarray) -> MotionState:
+    """Wheels in the air: no speed over ground, grade, acceleration or turning."""
+    zero = {"speed_mps": 0.0, "sin_t": 0.0, "cos_t": 1.0, "accel_mps2": 0.0,
+            "yaw_rate_radps": 0.0}
+    changes = {}
+    for name, value in zero.items():
+        arr = np.array(np.broadcast_to(np.asarray(getattr(state, name), float), mask.shape))
+        arr[mask] = value
+        changes[name] = arr
+    return state.with_(**changes)
+
+
+def _column_or_zero(frame: pd.DataFrame, column: str) -> np.ndarray:
+    """A column as floats with missing values as 0, or zeros when the column is absent."""
+    if column not in frame.columns:
+        return np.zeros(len(frame))
+    return frame[column].fillna(0.0).to_numpy(float)
+
+
+def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:
+    """Cumulative distance travelled at each sample (trapezoid of speed, gaps skipped) [m]."""
+    speed = recording.frame["v_mps"].to_numpy(float) if speed_mps is None else speed_mps
+    return cumulative_J(recording, np.abs(speed))
+
+
+def _grade(recording: Recording, speed: np.ndarray, window_m: float):
+    n = len(speed)
+    if not recording.has("z_m"):
+        return np.ones(n), np.zeros(n)
+    s = distance_along_m(recording, speed)
+    z = recording.frame["z_m"].to_numpy(float)
+    if s[-1] <= 0:
+        return np.ones(n), np.zeros(n)
+    step_m = max(s[-1] / 200_000.0, min(0.5, window_m / 10.0))
+    grid = np.arange(0.0, s[-1] + step_m, step_m)
+    # Standing still gives many z at one distance; np.interp takes them in order, fine for
+    # a moving average over metres.
+    z_grid = np.interp(grid, s, z)
+    window = max(3, round(window_m / step_m))
+    z_smooth = smooth(z_grid, window + 1 - window % 2)
+    slope = np.interp(s, grid, np.gradient(z_smooth, step_m))
+    hyp = np.sqrt(1.0 + slope**2)
+    return 1.0 / hyp, slope / hyp
+
+
+def _direction(frame: pd.DataFrame, t, pieces, speed):
+    if "x_m" in frame.columns and "y_m" in frame.columns:
+        heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces, speed)
+        return np.cos(heading), np.sin(heading)
+    n = len(frame)
+    return np.ones(n), np.zeros(n)
+
+
+def _wind(frame: pd.DataFrame, world, n: int):
+    if "wind_mps" in frame.columns and "wind_from_deg" in frame.columns:
+        return wind_vector_mps(frame["wind_mps"].to_numpy(float),
+                               frame["wind_from_deg"].to_numpy(float))
+    if world is not None:
+        wx, wy = world.wind_xy_mps
+        return np.full(n, float(wx)), np.full(n, float(wy))
+    return np.zeros(n), np.zeros(n)
+
+
+def _rolling(frame: pd.DataFrame, world, default_crr, n: int):
+    if default_crr is None:
+        default_crr = world.default_crr if world is not None else 0.0
+    crr = np.full(n, float(default_crr))
+    code = np.full(n, -1, dtype=int)
+    if world is None:
+        return crr, code
+    if "x_m" in frame.columns and "y_m" in frame.columns:
+        x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
+        code = world.surface_code_at(x, y)
+        crr = np.where(code >= 0, world.crr_at(x, y), float(default_crr))
+        return crr, code
+    if "surface" in frame.columns:
+        names = world.map.surface_names
+        crr_by_name = {s.name: s.crr for s in world.map.surfaces}  # last feature wins
+        labels = frame["surface"].astype(str).str.strip().to_numpy()
+        for name in names:
+            hit = np.char.lower(labels.astype(str)) == name.lower()
+            crr[hit] = crr_by_name[name]
+            code[hit] = names.index(name)
+        default_name = getattr(world, "default_surface_name", None)
+        if default_name:
+            hit = (np.char.lower(labels.astype(str)) == default_name.lower()) & (code < 0)
+            crr[hit] = float(default_crr)
+    return crr, code
