@@ -322,3 +322,32 @@ def test_recording_state_hvac_and_elapsed_time():
     np.testing.assert_allclose(state.channel("hvac_W"), [500.0, 0.0, 700.0])  # missing counts 0
     no_hvac = recording_state(recording_from_frame(frame.drop(columns="hvac_W")))
     np.testing.assert_allclose(no_hvac.channel("hvac_W"), 0.0)
+
+
+def test_other_columns_keep_their_dtype_and_rows_through_cleaning():
+    """The rules work on arrays and build the table once: columns the rules do not read
+    (text, flags, nullable numbers) come out with their dtype, filtered like every row."""
+    df = pd.DataFrame({
+        "t_s": [0.0, 1.0, 1.0, 2.0, 3.0],  # a duplicate stamp: row 2 dropped
+        "power_W": [5.0, 6.0, 7.0, np.nan, 8.0],  # a missing power: row 3 dropped
+        "v_mps": [0.5, 0.5, 0.5, 0.5, 0.5],
+        "surface": ["grass", "tile", "x", "y", "tile"],
+        "wheels_up": [False, True, False, False, True],
+        "hvac_W": pd.array([1, None, 3, 4, 5], dtype="Int64"),
+    })
+    df.attrs["import_notes"] = ["a note"]
+    rec = recording_from_frame(df)
+    f = rec.frame
+    assert f["surface"].tolist() == ["grass", "tile", "tile"]
+    assert f["wheels_up"].dtype == bool and f["wheels_up"].tolist() == [False, True, True]
+    assert str(f["hvac_W"].dtype) == "Int64" and f["hvac_W"].isna().tolist() == [False, True,
+                                                                                 False]
+    assert f.attrs["import_notes"] == ["a note"]
+    assert f["t_s"].dtype == float and list(f.columns[:3]) == ["t_s", "power_W", "v_mps"]
+
+
+def test_a_column_named_twice_is_refused():
+    df = pd.DataFrame([[0.0, 1.0, 0.5, 2.0], [1.0, 1.0, 0.5, 2.0]],
+                      columns=["t_s", "power_W", "v_mps", " power_W"])
+    with pytest.raises(RecordingError, match="column 'power_W' appears twice"):
+        recording_from_frame(df)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-import pandas as pd
 
 SMOOTH_WINDOW_S = 0.5
 """Centred moving-average window before differentiating positions or speed [s]."""
@@ -70,6 +69,15 @@ def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None) -> np.ndarr
     ys = smooth_pieces(np.asarray(y_m, float), w, pieces)
     vx, vy = derivative(xs, t, pieces), derivative(ys, t, pieces)
     speed = np.hypot(vx, vy) if speed_mps is None else np.asarray(speed_mps, float)
-    heading = pd.Series(np.where(speed > STILL_SPEED_MPS, np.arctan2(vy, vx), np.nan))
-    heading = heading.ffill().bfill().fillna(0.0).to_numpy()
-    return np.unwrap(heading)
+    return np.unwrap(_held(np.arctan2(vy, vx), speed > STILL_SPEED_MPS))
+
+
+def _held(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``values`` where ``valid``, elsewhere the last valid one before (the first valid one
+    before any; 0 when none is valid)."""
+    if not valid.any():
+        return np.zeros(values.shape)
+    index = np.where(valid, np.arange(values.size), 0)
+    np.maximum.accumulate(index, out=index)
+    index[: int(np.argmax(valid))] = int(np.argmax(valid))
+    return values[index]

@@ -267,52 +267,95 @@ def recording_from_frame(df: pd.DataFrame, source: str = "<frame>") -> Recording
     ------
     RecordingError
         One line naming the problem (missing column, text in a number, empty, bad stamps).
+
+    Notes
+    -----
+    The rules work on the columns as arrays (``Columns``) and the table is built once at the
+    end: a mission session cleans every telemetry batch of a few dozen rows, where a pandas
+    operation per rule would cost more than the rules themselves.
     """
     if len(df.columns) == 0 or len(df) == 0:
         raise RecordingError(f"{source}: the recording has no data rows")
     if len(df) < 2:
         raise RecordingError(f"{source}: the recording has only one row; at least 2 are needed")
-    frame = df.reset_index(drop=True).copy()
-    frame.columns = [str(c).strip() for c in frame.columns]
-    _check_required(frame, source)
-    frame = _to_numbers(frame, source)
+    cols = _columns(df, source)
+    _check_required(cols, source)
+    _to_numbers(cols, df, source)
     # Importers leave what they had to decide (e.g. a fallback channel) in attrs.
-    issues = [DataIssue("import", len(frame), -1, str(note))
+    issues = [DataIssue("import", cols.n, -1, str(note))
               for note in df.attrs.get("import_notes", ())]
-    frame = _check_timestamps(frame, source, issues)
-    frame = _drop_missing(frame, _needed_columns(frame), issues)
-    frame = _drop_unordered(frame, issues)
-    if len(frame) < 2:
+    _check_timestamps(cols, source, issues)
+    _drop_missing(cols, _needed_columns(cols), issues)
+    _drop_unordered(cols, issues)
+    if cols.n < 2:
         raise RecordingError(
             f"{source}: fewer than 2 usable rows remain after cleaning ("
             + "; ".join(str(i) for i in issues) + ")"
         )
-    frame = _fill_optional(frame, issues)
-    t = frame["t_s"].to_numpy(float)
-    gap_threshold_s = _gap_threshold(t, issues, frame["_row"].to_numpy())
+    _fill_optional(cols, issues)
+    t = cols["t_s"]
+    gap_threshold_s = _gap_threshold(t, issues, cols.rows)
     pieces = gap_free_pieces(t, gap_threshold_s)
-    frame = _derive(frame, pieces, issues)
-    frame = _order_columns(frame.drop(columns="_row"))
+    _derive(cols, pieces, issues)
+    frame = pd.DataFrame(_ordered(cols.data), copy=False)
+    frame.attrs.update(df.attrs)
     return Recording(frame, source, tuple(issues), gap_threshold_s)
 
 
-def _check_required(frame: pd.DataFrame, source: str) -> None:
-    cols = set(frame.columns)
-    if "t_s" not in cols:
-        raise RecordingError(f"{source}: missing required column 't_s'" + _have(cols))
-    if "power_W" not in cols:
-        lacking = [c for c in ("voltage_V", "current_A") if c not in cols]
+class Columns:
+    """A table being cleaned: column name -> array (numbers as float arrays, other columns
+    as pandas arrays, which keep their dtype) and each row's position in the input."""
+
+    def __init__(self, data: dict, n: int):
+        self.data, self.n = data, n
+        self.rows = np.arange(n)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.data
+
+    def __getitem__(self, name: str):
+        return self.data[name]
+
+    def __setitem__(self, name: str, values) -> None:
+        self.data[name] = values
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Keep the rows where ``mask`` is true, in every column."""
+        if mask.all():
+            return
+        self.data = {k: v[mask] for k, v in self.data.items()}
+        self.rows = self.rows[mask]
+        self.n = int(self.rows.size)
+
+
+def _columns(df: pd.DataFrame, source: str) -> Columns:
+    names = [str(c).strip() for c in df.columns]
+    seen = set()
+    for name in names:
+        if name in seen:
+            raise RecordingError(f"{source}: column {name!r} appears twice")
+        seen.add(name)
+    data = {name: df.iloc[:, i].array for i, name in enumerate(names)}
+    return Columns(data, len(df))
+
+
+def _check_required(cols: Columns, source: str) -> None:
+    names = set(cols.data)
+    if "t_s" not in names:
+        raise RecordingError(f"{source}: missing required column 't_s'" + _have(names))
+    if "power_W" not in names:
+        lacking = [c for c in ("voltage_V", "current_A") if c not in names]
         if lacking:
             raise RecordingError(
                 f"{source}: missing column 'power_W' (or '{lacking[0]}' to derive it from "
-                "voltage_V x current_A)" + _have(cols)
+                "voltage_V x current_A)" + _have(names)
             )
-    if "v_mps" not in cols:
-        lacking = [c for c in ("x_m", "y_m") if c not in cols]
+    if "v_mps" not in names:
+        lacking = [c for c in ("x_m", "y_m") if c not in names]
         if lacking:
             raise RecordingError(
                 f"{source}: missing column 'v_mps' (or '{lacking[0]}': speed needs x_m and "
-                "y_m)" + _have(cols)
+                "y_m)" + _have(names)
             )
 
 
@@ -322,31 +365,30 @@ def _have(cols) -> str:
             + csv_delimiter_hint(cols))
 
 
-def _to_numbers(frame: pd.DataFrame, source: str) -> pd.DataFrame:
+def _to_numbers(cols: Columns, df: pd.DataFrame, source: str) -> None:
     for col in NUMERIC_COLUMNS:
-        if col not in frame.columns:
+        if col not in cols:
             continue
-        raw = frame[col]
-        if pd.api.types.is_bool_dtype(raw):
+        raw = cols[col]
+        if pd.api.types.is_bool_dtype(raw.dtype):
             raise RecordingError(f"{source}: column '{col}' holds true/false values, not numbers")
-        numbers = pd.to_numeric(raw, errors="coerce")
-        if pd.api.types.is_numeric_dtype(raw):  # numbers already: no text to report
-            frame[col] = numbers.astype(float)
+        if pd.api.types.is_numeric_dtype(raw.dtype):  # numbers already: no text to report
+            cols[col] = raw.to_numpy(dtype=float, na_value=np.nan)
             continue
-        text = numbers.isna() & raw.notna() & (raw.astype(str).str.strip() != "")
+        series = pd.Series(raw, copy=False)
+        numbers = pd.to_numeric(series, errors="coerce")
+        text = numbers.isna() & series.notna() & (series.astype(str).str.strip() != "")
         if text.any():
             row = int(np.flatnonzero(text.to_numpy())[0])
             raise RecordingError(
-                f"{source}: column '{col}' holds text {str(raw.iloc[row])!r} at row {row} "
+                f"{source}: column '{col}' holds text {str(series.iloc[row])!r} at row {row} "
                 f"(CSV line {row + 2}); numbers expected"
             )
-        frame[col] = numbers.astype(float)
-    frame["_row"] = np.arange(len(frame))
-    return frame
+        cols[col] = numbers.to_numpy(dtype=float, na_value=np.nan)
 
 
-def _check_timestamps(frame: pd.DataFrame, source: str, issues: list) -> pd.DataFrame:
-    t = frame["t_s"].to_numpy(float)
+def _check_timestamps(cols: Columns, source: str, issues: list) -> None:
+    t = cols["t_s"]
     hint = "; t_s must be seconds since the start (convert ms or ns, or subtract the first stamp)"
     if np.any(np.isinf(t)):
         row = int(np.flatnonzero(np.isinf(t))[0])
@@ -367,64 +409,61 @@ def _check_timestamps(frame: pd.DataFrame, source: str, issues: list) -> pd.Data
         )
     t0 = float(finite[0])
     if abs(t0) > REBASE_T0_S:
-        frame["t_s"] = frame["t_s"] - t0
+        cols["t_s"] = t - t0
         issues.append(DataIssue("rebased", int(finite.size), 0,
                                 f"t_s starts at {t0:.6g} s (epoch seconds): shifted so the "
                                 "first sample is at 0 s"))
-    return frame
 
 
-def _needed_columns(frame: pd.DataFrame) -> list[str]:
+def _needed_columns(cols) -> list[str]:
     needed = ["t_s"]
-    needed += ["power_W"] if "power_W" in frame.columns else ["voltage_V", "current_A"]
-    needed += ["v_mps"] if "v_mps" in frame.columns else ["x_m", "y_m"]
+    needed += ["power_W"] if "power_W" in cols else ["voltage_V", "current_A"]
+    needed += ["v_mps"] if "v_mps" in cols else ["x_m", "y_m"]
     return needed
 
 
-def _drop_missing(frame: pd.DataFrame, needed: list[str], issues: list) -> pd.DataFrame:
-    values = frame[needed].to_numpy(float)
-    bad = ~np.all(np.isfinite(values), axis=1)
+def _drop_missing(cols: Columns, needed: list[str], issues: list) -> None:
+    finite = np.column_stack([np.isfinite(cols[c]) for c in needed])
+    bad = ~np.all(finite, axis=1)
     if bad.any():
-        cols = [c for c, b in zip(needed, (~np.isfinite(values)).any(axis=0)) if b]
-        issues.append(DataIssue("missing_value", int(bad.sum()), int(frame["_row"][bad].iloc[0]),
-                                f"rows with a missing or non-finite {', '.join(cols)} dropped"))
-    return frame[~bad].reset_index(drop=True)
+        names = [c for c, b in zip(needed, (~finite).any(axis=0)) if b]
+        issues.append(DataIssue("missing_value", int(bad.sum()), int(cols.rows[bad][0]),
+                                f"rows with a missing or non-finite {', '.join(names)} dropped"))
+        cols.keep(~bad)
 
 
-def _drop_unordered(frame: pd.DataFrame, issues: list) -> pd.DataFrame:
-    t = frame["t_s"].to_numpy(float)
+def _drop_unordered(cols: Columns, issues: list) -> None:
+    t = cols["t_s"]
     latest = np.concatenate([[-np.inf], np.maximum.accumulate(t)[:-1]])
     backwards, duplicate = t < latest, t == latest
-    rows = frame["_row"].to_numpy()
+    rows = cols.rows
     if backwards.any():
         issues.append(DataIssue("backwards", int(backwards.sum()), int(rows[backwards][0]),
                                 "rows stamped earlier than an earlier row dropped"))
     if duplicate.any():
         issues.append(DataIssue("duplicate", int(duplicate.sum()), int(rows[duplicate][0]),
                                 "rows repeating the previous stamp dropped (first kept)"))
-    return frame[~(backwards | duplicate)].reset_index(drop=True)
+    cols.keep(~(backwards | duplicate))
 
 
-def _fill_optional(frame: pd.DataFrame, issues: list) -> pd.DataFrame:
-    needed = set(_needed_columns(frame))
-    t = frame["t_s"].to_numpy(float)
+def _fill_optional(cols: Columns, issues: list) -> None:
+    needed = set(_needed_columns(cols))
+    t = cols["t_s"]
     for col in NUMERIC_COLUMNS:
-        if col not in frame.columns or col in needed:
+        if col not in cols or col in needed:
             continue
-        v = frame[col].to_numpy(float)
+        v = cols[col]
         ok = np.isfinite(v)
         if ok.all():
             continue
         if not ok.any():
-            frame = frame.drop(columns=col)
+            del cols.data[col]
             issues.append(DataIssue("optional_missing", len(v), -1,
                                     f"optional column {col} has no value: removed"))
             continue
-        frame[col] = np.interp(t, t[ok], v[ok])
-        issues.append(DataIssue("optional_missing", int((~ok).sum()),
-                                int(frame["_row"][~ok].iloc[0]),
+        cols[col] = np.interp(t, t[ok], v[ok])
+        issues.append(DataIssue("optional_missing", int((~ok).sum()), int(cols.rows[~ok][0]),
                                 f"missing {col} interpolated linearly in time"))
-    return frame
 
 
 def _gap_threshold(t: np.ndarray, issues: list, rows: np.ndarray) -> float:
@@ -444,46 +483,45 @@ def _gap_threshold(t: np.ndarray, issues: list, rows: np.ndarray) -> float:
 # --- derived channels ---------------------------------------------------------------------------
 
 
-def _derive(frame: pd.DataFrame, pieces: list[slice], issues: list) -> pd.DataFrame:
-    t = frame["t_s"].to_numpy(float)
-    n, w = len(frame), window_samples(t)
-    has_xy = "x_m" in frame.columns and "y_m" in frame.columns
-    if "power_W" not in frame.columns:
-        frame["power_W"] = frame["voltage_V"] * frame["current_A"]
+def _derive(cols: Columns, pieces: list[slice], issues: list) -> None:
+    t = cols["t_s"]
+    n, w = cols.n, window_samples(t)
+    has_xy = "x_m" in cols and "y_m" in cols
+    if "power_W" not in cols:
+        cols["power_W"] = cols["voltage_V"] * cols["current_A"]
         issues.append(DataIssue("derived", n, 0, "power_W = voltage_V x current_A"))
-    if "v_mps" not in frame.columns:
-        xs = smooth_pieces(frame["x_m"].to_numpy(float), w, pieces)
-        ys = smooth_pieces(frame["y_m"].to_numpy(float), w, pieces)
-        frame["v_mps"] = np.hypot(derivative(xs, t, pieces), derivative(ys, t, pieces))
+    if "v_mps" not in cols:
+        xs = smooth_pieces(cols["x_m"], w, pieces)
+        ys = smooth_pieces(cols["y_m"], w, pieces)
+        cols["v_mps"] = np.hypot(derivative(xs, t, pieces), derivative(ys, t, pieces))
         issues.append(DataIssue("derived", n, 0, f"v_mps from positions: {w}-sample centred "
                                 "moving average, then central differences"))
-    v = frame["v_mps"].to_numpy(float)
+    v = cols["v_mps"]
     if (v < 0).any():
         issues.append(DataIssue("reverse", int((v < 0).sum()), int(np.flatnonzero(v < 0)[0]),
                                 "negative v_mps (reversing) replaced by its magnitude"))
-        frame["v_mps"] = np.abs(v)
-    if "yaw_rate_radps" not in frame.columns:
+        cols["v_mps"] = np.abs(v)
+    if "yaw_rate_radps" not in cols:
         if has_xy:
-            heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces,
-                                           frame["v_mps"].to_numpy(float))
-            frame["yaw_rate_radps"] = derivative(heading, t, pieces)
+            heading = position_heading_rad(cols["x_m"], cols["y_m"], t, pieces, cols["v_mps"])
+            cols["yaw_rate_radps"] = derivative(heading, t, pieces)
             rule = (f"yaw_rate_radps from the heading of positions ({w}-sample moving "
                     f"average, unwrapped, held below {STILL_SPEED_MPS} m/s), central differences")
         else:
-            frame["yaw_rate_radps"] = 0.0
+            cols["yaw_rate_radps"] = np.zeros(n)
             rule = "no yaw_rate_radps and no positions: yaw rate set to 0"
         issues.append(DataIssue("derived", n, 0, rule))
-    if "accel_mps2" not in frame.columns:
-        vs = smooth_pieces(frame["v_mps"].to_numpy(float), w, pieces)
-        frame["accel_mps2"] = derivative(vs, t, pieces)
+    if "accel_mps2" not in cols:
+        vs = smooth_pieces(cols["v_mps"], w, pieces)
+        cols["accel_mps2"] = derivative(vs, t, pieces)
         issues.append(DataIssue("derived", n, 0, f"accel_mps2 from v_mps: {w}-sample centred "
                                 "moving average, then central differences"))
-    return frame
 
 
-def _order_columns(frame: pd.DataFrame) -> pd.DataFrame:
-    first = [c for c in SPEC_COLUMNS if c in frame.columns]
-    return frame[first + [c for c in frame.columns if c not in first]]
+def _ordered(data: dict) -> dict:
+    """SPEC §3 columns first, in their documented order, then the others as they came."""
+    first = [c for c in SPEC_COLUMNS if c in data]
+    return {c: data[c] for c in first + [c for c in data if c not in first]}
 
 
 # --- blocks ---------------------------------------------------------------------
