@@ -7,6 +7,7 @@ on, so a rerun of the same sweep can skip what is already stored.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import itertools
@@ -134,7 +135,8 @@ def _scenario_files(value, path: Path) -> list[tuple[str, Path, dict]]:
         file = (path.parent / label).resolve()
         if not file.is_file():
             raise InputError(f"{where}: scenario file '{label}' not found")
-        data = read_toml(file, "scenario")
+        with _named(where, "scenarios"):
+            data = read_toml(file, "scenario")
         if isinstance(data.get("map"), str):  # the runs carry the data, not the file's folder
             data["map"] = str((file.parent / data["map"]).resolve())
         data.setdefault("name", file.stem)
@@ -179,9 +181,19 @@ def _truth(value, path: Path) -> str | dict:
     if not value.endswith(".toml"):
         raise InputError(f"{where}: truth = {value!r} must be one of {', '.join(TRUTH_KINDS)} "
                          "or the path of a TRUTH.toml" + close_match_hint(value, TRUTH_KINDS))
-    data = read_toml(path.parent / value, "truth", InputError)
-    truth_from_dict(data, value)  # refuse a bad truth now, not on every worker
+    with _named(where, "truth"):
+        data = read_toml(path.parent / value, "truth", InputError)
+        truth_from_dict(data, value)  # refuse a bad truth now, not on every worker
     return data
+
+
+@contextlib.contextmanager
+def _named(where: str, what: str):
+    """An error in a file the sweep names, prefixed with the sweep file and the key."""
+    try:
+        yield
+    except InputError as exc:
+        raise InputError(f"{where}: {what}: {exc}") from None
 
 
 def _integer(value, key: str, low: int, where: str) -> int:

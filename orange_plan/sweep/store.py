@@ -55,9 +55,13 @@ class ResultStore:
                              "write to another -o file or remove it")
 
     def add(self, row: dict) -> None:
-        """Store one finished run (atomically: a kill leaves it whole or absent)."""
+        """Store one finished run (atomically: a kill leaves it whole or absent). A run
+        stored already keeps its first row (its rerun has the same inputs)."""
         self.parts.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self.parts / f"{row['run_id']}.parquet", suffix=".parquet") as tmp:
+        part = self.parts / f"{row['run_id']}.parquet"
+        if part.exists():
+            return
+        with atomic_path(part, suffix=".parquet") as tmp:
             pd.DataFrame([row]).to_parquet(tmp, index=False)
 
     def consolidate(self) -> pd.DataFrame:
