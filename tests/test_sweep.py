@@ -160,6 +160,8 @@ def test_store_keeps_the_first_row_of_an_id_and_removes_parts(tmp_path):
     assert not store.parts.exists()
     store.add(row("a", 0, 99.0))  # a rerun of a task a killed worker had finished
     store.add(row("c", 2))
+    (store.parts / ".d.parquet.x1y2.parquet").write_bytes(b"")  # a write the kill cut short
+    assert store.done_ids() == {"a", "b", "c"}
     rows = store.consolidate()
     assert list(rows["run_id"]) == ["a", "b", "c"]
     assert list(rows["coverage_m2"]) == [1.0, 1.0, 1.0]
@@ -238,7 +240,7 @@ def test_a_worker_killed_mid_sweep_loses_and_duplicates_no_row(tmp_path, cluster
         victim, in_flight = None, []
         while victim is None and not done.is_set():  # a worker with a run in progress
             busy = {w: keys for w, keys in client.processing().items() if keys}
-            if busy and len(list(store.parts.glob("*.parquet"))) >= 2:
+            if busy and len(store.part_files()) >= 2:
                 victim, in_flight = next(iter(busy.items()))
             time.sleep(0.05)
         assert victim is not None, "the sweep ended before a worker could be killed"
@@ -256,7 +258,7 @@ def test_a_worker_killed_mid_sweep_loses_and_duplicates_no_row(tmp_path, cluster
 def test_killed_sweep_process_resumes_without_redoing_finished_runs(tmp_path):
     path = write_sweep(tmp_path, seeds=3)
     out = tmp_path / "r.parquet"
-    parts = out.with_name(out.name + ".parts")
+    store = ResultStore(out)
     n = len(load_sweep(path).runs)
     proc = subprocess.Popen([sys.executable, "-m", "orange_plan.cli", "sweep", str(path),
                              "-o", str(out), "--workers", "2"], cwd=REPO,
@@ -264,14 +266,14 @@ def test_killed_sweep_process_resumes_without_redoing_finished_runs(tmp_path):
                             stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 120
-        while len(list(parts.glob("*.parquet"))) < 3 and time.monotonic() < deadline:
+        while len(store.part_files()) < 3 and time.monotonic() < deadline:
             time.sleep(0.05)
         assert proc.poll() is None, "the sweep finished before it could be killed"
     finally:  # the whole session: the sweep, its scheduler and its worker processes
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
     assert not [p for p in psutil.process_iter(["pid"]) if _in_session(p, proc.pid)]
-    finished = pd.concat([pd.read_parquet(p) for p in parts.glob("*.parquet")])
+    finished = store.rows()
     assert 3 <= len(finished) < n and not out.exists()
     code, stdout, stderr = run_cli("sweep", path, "-o", out, "--json")
     assert code == 0, stderr

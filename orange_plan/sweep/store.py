@@ -34,13 +34,17 @@ class ResultStore:
         if self.path.exists():
             frames.append(_read(self.path))
         if self.parts.is_dir():
-            frames += [_read(p) for p in sorted(self.parts.glob("*.parquet"))]
+            frames += [_read(p) for p in self.part_files()]
         frames = [f for f in frames if len(f)]
         if not frames:
             return pd.DataFrame({"run_id": pd.Series(dtype=str)})
         rows = pd.concat(frames, ignore_index=True)
         rows = rows.drop_duplicates("run_id", keep="first")
         return rows.sort_values("index", kind="stable").reset_index(drop=True)
+
+    def part_files(self) -> list[Path]:
+        """The finished runs' files (not a write a kill interrupted: hidden, see atomic_path)."""
+        return sorted(self.parts.glob("[!.]*.parquet")) if self.parts.is_dir() else []
 
     def done_ids(self) -> set[str]:
         """Run ids already stored."""
