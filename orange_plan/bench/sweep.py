@@ -84,17 +84,22 @@ def run_speedup_bench(scenario: Path, runs: int = 12, repeats: int = 3, vertices
 
 
 
-def _live_in_session(sid: int) -> int:
-    """Processes of session ``sid`` still alive (zombies are dead, waiting for init)."""
+def _live_in_session(sid: int, wait_s: float = 15.0) -> int:
+    """Processes of session ``sid`` still alive after up to ``wait_s`` (zombies are dead,
+    waiting for init; a SIGKILL is delivered asynchronously)."""
     import psutil
 
-    count = 0
-    for p in psutil.process_iter():
-        try:
-            count += os.getsid(p.pid) == sid and p.status() != psutil.STATUS_ZOMBIE
-        except (ProcessLookupError, PermissionError, psutil.NoSuchProcess):
-            continue
-    return count
+    deadline = time.monotonic() + wait_s
+    while True:
+        count = 0
+        for p in psutil.process_iter():
+            try:
+                count += os.getsid(p.pid) == sid and p.status() != psutil.STATUS_ZOMBIE
+            except (ProcessLookupError, PermissionError, psutil.NoSuchProcess):
+                continue
+        if not count or time.monotonic() > deadline:
+            return count
+        time.sleep(0.2)
 
 
 def _sweep_command(sweep: Path, out: Path, *extra: str) -> list[str]:
@@ -129,7 +134,6 @@ def run_resume_check(scenario: Path, runs: int = 200, kill_after: int = 100,
         if proc.returncode == 0 or not store.part_files():
             raise RuntimeError("the sweep ended before it was killed: "
                                + proc.stderr.read().decode()[-300:])
-        time.sleep(1.0)  # let init reap the killed workers
         stray = _live_in_session(proc.pid)
         before = store.rows()
         step(f"rerun ({len(before)} rows stored at the kill)")

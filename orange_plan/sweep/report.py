@@ -61,20 +61,6 @@ def summary_table(summary: list[dict], grid_keys, title: str):
     return t
 
 
-def markdown_table(summary: list[dict], grid_keys) -> str:
-    """The same table in Markdown (README)."""
-    head = ["scenario", *grid_keys, "runs", "errors", "stayed home", "stranded",
-            "p95 stranding", "coverage m2", "left at home kJ", "run s"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in summary:
-        cells = [*(_show(r[k]) for k in ("scenario", *grid_keys)), str(r["runs"]),
-                 str(r["errors"]), str(r["stayed_home"]), str(r["strandings"]),
-                 _fmt(r["stranding_upper95"], ".1%"), _fmt(r["coverage_m2"], ",.0f"),
-                 _fmt(r["energy_left_at_home_kJ"], ".2f"), _fmt(r["run_s"], ".2f")]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
 def x_key(summary: list[dict], grid_keys) -> str | None:
     """The first grid key whose values are all numbers: the figure's x axis."""
     for key in grid_keys:
