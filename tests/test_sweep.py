@@ -304,3 +304,30 @@ def _in_session(p, sid: int) -> bool:
         return os.getsid(p.pid) == sid and p.status() != psutil.STATUS_ZOMBIE
     except (ProcessLookupError, PermissionError, psutil.NoSuchProcess):
         return False
+
+
+def test_an_unreachable_scheduler_is_exit_2(tmp_path):
+    code, _, stderr = run_cli("sweep", write_sweep(tmp_path), "-o", tmp_path / "r.parquet",
+                              "--scheduler", "tcp://127.0.0.1:9")
+    assert code == 2 and "--scheduler tcp://127.0.0.1:9: no Dask scheduler answers" in stderr
+    assert stderr.count("\n") == 1
+
+
+def test_bench_sweep_small_run_meets_its_own_bookkeeping(tmp_path):
+    """Structure only (the measured figures are the README's): both timings per repeat, and
+    the kill-and-resume check ending with one row per run, none redone, no process left."""
+    write_scenario(tmp_path, name="yard.toml")
+    code, stdout, stderr = run_cli("bench", "sweep", tmp_path / "yard.toml", "--runs", "2",
+                                   "--repeats", "1", "--vertices", "60", "--resume-runs", "6",
+                                   "--json")
+    assert code == 0, stderr
+    result = json.loads(stdout)
+    speed = result["speedup"]
+    assert len(speed["seconds_1_worker"]) == len(speed["seconds_2_workers"]) == 1
+    assert speed["speedup"] == pytest.approx(speed["median_1_worker_s"]
+                                             / speed["median_2_workers_s"])
+    resume = result["resume"]
+    assert resume["ok"] and resume["final_rows"] == resume["unique_ids"] == 6
+    assert resume["resumed"] == resume["rows_at_kill"] >= 3
+    assert resume["resumed"] + resume["ran_after"] == 6
+    assert resume["redone"] == 0 and resume["stray_processes"] == 0

@@ -6,6 +6,11 @@ started and its workers warmed (the planner's modules imported) before the clock
 the time is the sweep's: first submission to last row stored. Speed-up = median time with 1
 worker / median time with 2.
 
+``busy`` is the workers' time spent in runs over their wall time (sum of ``run_s`` / (workers
+x sweep time)): near 1, Dask adds little and the speed-up is what the cores give; the run time
+with 2 workers over that with 1 shows how much the two workers slowed each other down (a
+machine with other work on it: fewer free cores than workers).
+
 ``run_resume_check``: a sweep of ``runs`` runs started as its own process (``orange-plan
 sweep``), killed with SIGKILL, with its scheduler and workers, once ``kill_after`` rows are
 stored; then run again. It must end with exactly ``runs`` rows, one per run id, the rows
@@ -56,7 +61,8 @@ def run_speedup_bench(scenario: Path, runs: int = 12, repeats: int = 3, vertices
 
     step = step or (lambda text: None)
     times: dict[int, list[float]] = {1: [], 2: []}
-    run_s: list[float] = []
+    busy: dict[int, list[float]] = {1: [], 2: []}
+    run_s: dict[int, list[float]] = {1: [], 2: []}
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory(prefix="orange-bench-sweep-") as folder:
         sweep = load_sweep(write_seed_sweep(Path(folder), scenario, runs, vertices))
@@ -71,14 +77,17 @@ def run_speedup_bench(scenario: Path, runs: int = 12, repeats: int = 3, vertices
                               lambda _key, row, store=store: store.add(row))
                     times[workers].append(time.perf_counter() - t0)
                 rows = store.consolidate()
-                if workers == 1:
-                    run_s += list(rows["run_s"])
+                run_s[workers] += list(rows["run_s"])
+                busy[workers].append(float(rows["run_s"].sum()) / (workers * times[workers][-1]))
                 load.append(os.getloadavg()[0])
     t1, t2 = statistics.median(times[1]), statistics.median(times[2])
     return {"scenario": scenario.stem, "runs": runs, "repeats": repeats, "vertices": vertices,
             "seconds_1_worker": times[1], "seconds_2_workers": times[2],
             "median_1_worker_s": t1, "median_2_workers_s": t2, "speedup": t1 / t2,
-            "median_run_s": statistics.median(run_s), "cpus": os.cpu_count(),
+            "median_run_s": statistics.median(run_s[1]),
+            "median_run_s_2_workers": statistics.median(run_s[2]),
+            "busy_1_worker": statistics.median(busy[1]),
+            "busy_2_workers": statistics.median(busy[2]), "cpus": os.cpu_count(),
             "load_1min": load, "targets": TARGETS}
 
 

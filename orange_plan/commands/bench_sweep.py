@@ -66,7 +66,10 @@ def sweep_bench_table(result: dict) -> Table:
               f"{s['median_1_worker_s']:.1f} s / {s['median_2_workers_s']:.1f} s", "")
     t.add_row("speed-up 1 -> 2 workers", f"{s['speedup']:.2f} x",
               f">= {s['targets']['speedup_1_to_2']:g} x")
-    t.add_row("one run (median, 1 worker)", f"{s['median_run_s']:.2f} s", ">= 1 s")
+    t.add_row("one run (median), 1 worker / 2 workers",
+              f"{s['median_run_s']:.2f} s / {s['median_run_s_2_workers']:.2f} s", ">= 1 s")
+    t.add_row("workers busy in runs, 1 worker / 2 workers",
+              f"{s['busy_1_worker']:.0%} / {s['busy_2_workers']:.0%}", "")
     r = result.get("resume")
     if r:
         t.add_row(f"{r['runs']}-run sweep killed at {r['rows_at_kill']} rows, rerun: rows",
