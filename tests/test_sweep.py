@@ -18,6 +18,7 @@ import pytest
 import tomli_w
 from conftest import REPO, run_cli, write_scenario
 
+from orange_plan.bench.sweep import live_in_session
 from orange_plan.errors import InputError
 from orange_plan.sweep.driver import run_sweep
 from orange_plan.sweep.report import summary_rows
@@ -272,7 +273,7 @@ def test_killed_sweep_process_resumes_without_redoing_finished_runs(tmp_path):
     finally:  # the whole session: the sweep, its scheduler and its worker processes
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-    assert not _left_in_session(proc.pid)
+    assert live_in_session(proc.pid) == 0
     finished = store.rows()
     assert 3 <= len(finished) < n and not out.exists()
     code, stdout, stderr = run_cli("sweep", path, "-o", out, "--json")
@@ -284,26 +285,6 @@ def test_killed_sweep_process_resumes_without_redoing_finished_runs(tmp_path):
     assert len(rows) == n and rows["run_id"].is_unique
     kept = rows.set_index("run_id").loc[finished["run_id"], "finished_utc"]
     assert list(kept) == list(finished["finished_utc"])  # not redone
-
-
-def _left_in_session(sid: int, wait_s: float = 15.0) -> list:
-    """Processes of the killed session still alive after ``wait_s`` (a SIGKILL is delivered
-    asynchronously; a process spawned while the kill was sent exits when it finds its parent
-    gone)."""
-    deadline = time.monotonic() + wait_s
-    while True:
-        left = [p for p in psutil.process_iter() if _in_session(p, sid)]
-        if not left or time.monotonic() > deadline:
-            return left
-        time.sleep(0.2)
-
-
-def _in_session(p, sid: int) -> bool:
-    """A live (not zombie: dead, waiting to be reaped by init) process of session ``sid``."""
-    try:
-        return os.getsid(p.pid) == sid and p.status() != psutil.STATUS_ZOMBIE
-    except (ProcessLookupError, PermissionError, psutil.NoSuchProcess):
-        return False
 
 
 def test_an_unreachable_scheduler_is_exit_2(tmp_path):

@@ -93,7 +93,7 @@ def run_speedup_bench(scenario: Path, runs: int = 12, repeats: int = 3, vertices
 
 
 
-def _live_in_session(sid: int, wait_s: float = 15.0) -> int:
+def live_in_session(sid: int, wait_s: float = 15.0) -> int:
     """Processes of session ``sid`` still alive after up to ``wait_s`` (zombies are dead,
     waiting for init; a SIGKILL is delivered asynchronously)."""
     import psutil
@@ -143,7 +143,7 @@ def run_resume_check(scenario: Path, runs: int = 200, kill_after: int = 100,
         if proc.returncode == 0 or not store.part_files():
             raise RuntimeError("the sweep ended before it was killed: "
                                + proc.stderr.read().decode()[-300:])
-        stray = _live_in_session(proc.pid)
+        stray = live_in_session(proc.pid)
         before = store.rows()
         step(f"rerun ({len(before)} rows stored at the kill)")
         t1 = time.perf_counter()
