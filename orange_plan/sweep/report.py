@@ -43,19 +43,29 @@ def _show(value) -> str:
 
 
 def summary_table(summary: list[dict], grid_keys, title: str):
-    """The terminal table (rich)."""
+    """The terminal table (rich): the scenario column only when there are several."""
+    from rich import box
     from rich.table import Table
 
-    t = Table(title=title, header_style="bold", caption="p95: 95 % upper bound of the "
-              "stranding probability; left: median energy left at home of the runs that got "
-              "home; medians over seeds")
-    for col in ("scenario", *grid_keys):
-        t.add_column(col.split(".")[-1], justify="left", no_wrap=True)
-    for col in ("runs", "errors", "home only", "stranded", "p95", "cov m2", "left kJ", "run s"):
-        t.add_column(col, justify="right")
+    scenarios = {r["scenario"] for r in summary}
+    keys = [*(["scenario"] if len(scenarios) > 1 else []), *grid_keys]
+    if len(scenarios) == 1:
+        title += f" of {next(iter(scenarios))}"
+    t = Table(title=title, header_style="bold", box=box.SIMPLE_HEAD, caption="err: runs "
+              "that failed; home: runs that stayed home (no tour fitted), each shown when not "
+              "0; p95: 95 % upper bound of the stranding probability; left: median energy "
+              "left at home of the runs that got home; medians over seeds")
+    for col in keys:  # as wide as their values (up to 18), then they wrap; the figures not
+        width = max(len(_show(r[col])) for r in summary)
+        t.add_column(col.split(".")[-1], overflow="fold", min_width=min(width, 18),
+                     max_width=max(min(width, 18), 8))
+    counts = [(c, k) for c, k in (("err", "errors"), ("home", "stayed_home"))
+              if any(r[k] for r in summary)]  # columns of zeros only are left out
+    for col in (*(c for c, _ in counts), "runs", "strand", "p95", "cov m2", "left kJ", "run s"):
+        t.add_column(col, justify="right", no_wrap=True, min_width=len(col))
     for r in summary:
-        t.add_row(*(_show(r[k]) for k in ("scenario", *grid_keys)), str(r["runs"]),
-                  str(r["errors"]), str(r["stayed_home"]), str(r["strandings"]),
+        t.add_row(*(_show(r[k]) for k in keys), *(str(r[k]) for _, k in counts),
+                  str(r["runs"]), str(r["strandings"]),
                   _fmt(r["stranding_upper95"], ".1%"), _fmt(r["coverage_m2"], ",.0f"),
                   _fmt(r["energy_left_at_home_kJ"], ".2f"), _fmt(r["run_s"], ".2f"))
     return t
