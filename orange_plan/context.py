@@ -43,7 +43,17 @@ def load_context(scenario_path: str | Path) -> Context:
     InputError
         For any problem in the scenario, the map or the raster (one line, names the problem).
     """
-    scenario = load_scenario(scenario_path)
+    return context_of(load_scenario(scenario_path))
+
+
+def context_of(scenario: Scenario) -> Context:
+    """A validated scenario with its world (map, raster) and EnergyModel.
+
+    Raises
+    ------
+    InputError
+        For any problem in the map or the raster.
+    """
     world = World.from_scenario(scenario)
     model = build_model(scenario, world.map.surface_names)
     return Context(scenario, world, model)

@@ -43,8 +43,9 @@ only). **Energy left at home** is the usable energy minus the energy drawn (nega
 stranded).
 
 ``run_one_mission(spec, seed) -> dict`` is pure and picklable (it writes its world into a
-per-process cache folder and memoises the map's first tour and lawnmower), so the study can be
-dealt out to a process pool (``run_mission_study``, ``workers``) or another scheduler.
+per-process cache folder and memoises the map's first tour and lawnmower), so the study is
+dealt out to Dask workers like the runs of ``orange-plan sweep`` (``run_mission_study``:
+``workers`` local processes, or an existing cluster's ``scheduler``).
 """
 
 from __future__ import annotations
@@ -511,16 +512,18 @@ def run_mission_study(n: int, seed: int = 0, n_maps: int = 10, workers: int = 1,
                       spec_kwargs: dict | None = None,
                       tick: Callable[[], None] | None = None,
                       on_progress: Callable[[dict], None] | None = None,
-                      progress_every: int = 10) -> dict:
+                      progress_every: int = 10, scheduler: str | None = None) -> dict:
     """Fly ``n`` missions (``mission_specs``; mission ``i`` has seed ``seed + i``).
 
-    ``workers`` > 1 deals them to a process pool; ``on_progress`` gets the partial result
-    every ``progress_every`` missions.
+    The missions run on Dask like ``orange-plan sweep``'s runs (``sweep.runner``): a local
+    cluster of ``workers`` processes, or the existing cluster of ``scheduler``
+    (tcp://HOST:PORT); ``on_progress`` gets the partial result every ``progress_every``
+    missions.
 
     Raises
     ------
     InputError
-        If ``n`` < 1, ``n_maps`` < 1 or ``workers`` < 1.
+        If ``n`` < 1, ``n_maps`` < 1, ``workers`` < 1 or a bad ``scheduler``.
     """
     if n < 1:
         raise InputError(f"--missions = {n} must be >= 1")
@@ -540,17 +543,15 @@ def run_mission_study(n: int, seed: int = 0, n_maps: int = 10, workers: int = 1,
         if on_progress is not None and len(done) % progress_every == 0 and len(done) < n:
             on_progress(study_result(done, n, seed, time.perf_counter() - t0, specs[0], False))
 
-    if workers == 1:
-        for i, spec in enumerate(specs):
-            finish(i, run_one_mission(spec, seed + i))
-    else:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+    # the sweep's path: Dask, a local cluster of ``workers`` processes or ``scheduler``'s
+    from orange_plan.sweep.runner import dask_client, run_tasks
+    from orange_plan.sweep.spec import run_id
 
-        with ProcessPoolExecutor(workers) as pool:
-            futures = {pool.submit(run_one_mission, spec, seed + i): i
-                       for i, spec in enumerate(specs)}
-            for fut in as_completed(futures):
-                finish(futures[fut], fut.result())
+    keys = {f"mission-{run_id({'spec': asdict(spec), 'seed': seed + i})}": i
+            for i, spec in enumerate(specs)}
+    with dask_client(workers, scheduler) as client:
+        run_tasks(client, run_one_mission, [(k, (specs[i], seed + i)) for k, i in keys.items()],
+                  lambda key, result: finish(keys[key], result))
     return study_result(done, n, seed, time.perf_counter() - t0, specs[0], True)
 
 

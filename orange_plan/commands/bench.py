@@ -224,7 +224,11 @@ def bench_mission_cmd(
     seed: Annotated[int, typer.Option(help="Seed of the first mission's truth.")] = 0,
     maps: Annotated[int, typer.Option(help="Maps of the random family flown in turn.")] = 10,
     vertices: Annotated[int, typer.Option(help="Roadmap vertices of every planner.")] = 1000,
-    workers: Annotated[int, typer.Option(help="Processes flying missions at once.")] = 2,
+    workers: Annotated[int, typer.Option(
+        help="Worker processes of the local Dask cluster flying missions at once.")] = 2,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Address tcp://HOST:PORT of an existing Dask scheduler to fly the missions on "
+             "instead (as `orange-plan sweep --scheduler`).")] = None,
     quick: Annotated[bool, typer.Option(
         help="Small run for tests: 3 missions on one 80 m x 60 m map, 400 vertices, 1 process.")]
         = False,
@@ -258,7 +262,7 @@ def bench_mission_cmd(
 
     with bar(missions, "missions", wanted(as_json)) as tick:
         result = run_mission_study(missions, seed, maps, workers, kwargs, tick=tick,
-                                   on_progress=save)
+                                   on_progress=save, scheduler=scheduler)
     save(result)
     if png is not None:
         mission_figure(result, png)

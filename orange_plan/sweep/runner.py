@@ -1,0 +1,79 @@
+"""Runs independent tasks on Dask: a local cluster on this machine, or an existing scheduler.
+
+The local cluster is worker processes (the tasks are Python-bound, the GIL would serialise
+threads) with one thread each, on 127.0.0.1, without the dashboard (it would need bokeh).
+Tasks are submitted under their own key: Dask reruns a task whose worker died, and a second
+client sweeping the same runs on a shared cluster shares the results instead of recomputing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+from orange_plan.errors import InputError
+
+SCHEDULER_RE = re.compile(r"^(tcp|tls)://[^\s/:]+:\d{1,5}$")
+
+DEATH_TIMEOUT_S = 20
+"""A local worker that has lost its scheduler (the sweep process was killed) exits after this
+long instead of lingering [s]."""
+
+CONNECT_TIMEOUT_S = 10
+"""How long to try to reach an existing scheduler [s]."""
+
+
+@contextlib.contextmanager
+def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]:
+    """A ``distributed.Client``: of ``scheduler`` (used as it is), else of a new local cluster
+    of ``workers`` processes; closed (and the local cluster shut down) on exit.
+
+    Raises
+    ------
+    InputError
+        For ``workers`` < 1, a malformed ``scheduler`` address or one that does not answer.
+    """
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        if not SCHEDULER_RE.match(scheduler):
+            raise InputError(f"--scheduler {scheduler!r} must look like tcp://HOST:PORT")
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") \
+                from None
+        with client:
+            yield client
+        return
+    if workers < 1:
+        raise InputError(f"--workers = {workers} must be >= 1")
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                      host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                      death_timeout=DEATH_TIMEOUT_S) as cluster, Client(cluster) as client:
+        yield client
+
+
+def run_tasks(client, fn: Callable, tasks: Sequence[tuple[str, tuple]],
+              on_result: Callable[[str, Any], None]) -> None:
+    """Run ``fn(*args)`` for each ``(key, args)`` of ``tasks`` on the cluster; call
+    ``on_result(key, result)`` in the caller's process as each finishes (any order).
+
+    A task's exception is raised here once its task has failed (after Dask's retries of
+    tasks whose worker died); results that arrived before it have been handed over.
+    """
+    from distributed import as_completed
+
+    futures = {}
+    for key, args in tasks:
+        fut = client.submit(fn, *args, key=f"orange-plan-{key}", pure=False)
+        futures[fut] = key
+    try:
+        for fut, result in as_completed(futures, with_results=True):
+            on_result(futures[fut], result)
+            fut.release()
+    finally:
+        client.cancel(list(futures))
