@@ -14,8 +14,8 @@ from conftest import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from orange_plan.bench.identify import accuracy_pct
 from orange_plan.context import load_context
-from orange_plan.identify.bench import accuracy_pct
 from orange_plan.report import ar_drone, rusti_v1, rusti_v2, wear
 from orange_plan.report.real_data import range_accuracy_pct
 from orange_plan.report.trials import (

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.bench.identify import PREDICT_AT, accuracy_pct, bench_route
 from orange_plan.context import load_context
-from orange_plan.identify.bench import PREDICT_AT, accuracy_pct, bench_route
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     CALIBRATION_RUNS,

@@ -3,7 +3,7 @@
 Real runs do not end at depletion, so the range is compared on each run's own motion: for
 the same path the estimated and true ranges relate as the energies, ``d_est / d_true =
 E_recorded / E_predicted``, so ``accuracy = 100 (1 - |E_recorded / E_predicted - 1|)``.
-The energies are those of ``bench calibration`` (``identify.bench.calibration_benchmark``:
+The energies are those of ``bench calibration`` (``bench.identify.calibration_benchmark``:
 two folds, fit on every other run, predict the others), a priori, calibrated, and online
 from the calibrated model at 20 % of the run.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from orange_plan.identify.bench import (
+from orange_plan.bench.identify import (
     PREDICT_AT,
     calibration_benchmark,
     count_runs,

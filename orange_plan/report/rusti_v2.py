@@ -3,7 +3,7 @@
 The paper's grid: grass, asphalt and tile; b1 = 1500 mAh and b2 = 2200 mAh packs; v1 = 0.544
 and v2 = 0.952 m/s (its figure, not in the source; no number in the text). The twelve shipped
 scenarios ``rusti_v2_<surface>_<pack>mAh_v<speed>`` are driven on the a-priori probe course
-of ``bench online`` (``identify.bench.bench_route``: out-and-back rays from home, one lap at
+of ``bench online`` (``bench.identify.bench_route``: out-and-back rays from home, one lap at
 most 10 % of the range) until the battery is spent.
 
 Estimates: the generalised offline ORangE (Eq. 11, path integral on the course) a priori and
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.bench.identify import bench_route
 from orange_plan.context import load_context
-from orange_plan.identify.bench import bench_route
 from orange_plan.report import rusti_v1
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (

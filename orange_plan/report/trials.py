@@ -1,6 +1,6 @@
 """What the report's experiments share: truth draws, runs to depletion, range estimates.
 
-Range estimation error (the paper's measure, ``identify.bench.accuracy_pct``)::
+Range estimation error (the paper's measure, ``bench.identify.accuracy_pct``)::
 
     error_pct = 100 |d_est - d_true| / d_true,     accuracy_pct = 100 - error_pct
 
@@ -23,8 +23,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from orange_plan.bench.identify import accuracy_pct, offline_range_m
 from orange_plan.context import Context
-from orange_plan.identify.bench import accuracy_pct, offline_range_m
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import SimResult, simulate
 from orange_plan.sim.truth import truth_from_dict
@@ -225,10 +225,11 @@ def online_ranges_m(belief: Context, sim: SimResult, fractions, batch_s: float =
     Returns (list of range estimates [m], the estimator after the last fraction).
     """
     from orange_plan.identify.online import OnlineEstimator, stream
-    from orange_plan.telemetry.recording import motion_state, recording_from_frame
+    from orange_plan.telemetry.recording import recording_from_frame
+    from orange_plan.telemetry.state import recording_state
 
     rec = recording_from_frame(sim.frame, f"{belief.scenario.name} run")
-    state = motion_state(rec, belief.world, sensor_rate_Hz=belief.sensor_rate_Hz)
+    state = recording_state(rec, belief.world, belief.sensor_rate_Hz)
     est = OnlineEstimator(belief.model, belief.scenario.battery.usable_J, memory_s, memory_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s, batch_s,
                      until_s=max(fractions) * sim.duration_s)

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.bench.identify import bench_route
 from orange_plan.context import load_context
-from orange_plan.identify.bench import bench_route
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
     LOGGER_HZ,
@@ -124,7 +124,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
                                 for name, d in zip(ESTIMATES, estimates)},
                              **{f"d_{key}_m": d for key, d in zip(ESTIMATE_KEYS, estimates)}})
             # between missions: what the whole mission just flown taught the estimator
-            learned = (current.model.with_theta(dict(zip(current.model.names, est.theta))),
+            learned = (current.model.with_theta(dict(zip(current.model.names, est.theta_))),
                        est.energy_used_J / ctx.scenario.battery.usable_J)
             advance(tick)
     return rows
