@@ -418,19 +418,19 @@ def test_planning_does_not_block_other_requests(tmp_path):
 
         def plan():
             result["r"] = httpx.post(f"{url}/missions", timeout=300,
-                                     json={"scenario": SCENARIO, "n_vertices": 4000})
+                                     json={"scenario": SCENARIO, "n_vertices": 10_000})
+            result["planned"] = time.perf_counter()
 
         planning = threading.Thread(target=plan)
         planning.start()
         time.sleep(0.3)
-        t0 = time.perf_counter()
-        health = httpx.get(f"{url}/health", timeout=30)
-        listed = httpx.get(f"{url}/missions", timeout=30)
-        elapsed = time.perf_counter() - t0
-        was_planning = planning.is_alive()
+        health = httpx.get(f"{url}/health", timeout=60)
+        listed = httpx.get(f"{url}/missions", timeout=60)
+        answered = time.perf_counter()
         planning.join()
         assert health.status_code == 200 and listed.status_code == 200
-        assert was_planning and elapsed < 1.0, (was_planning, elapsed)
+        # an order, not a duration: both answers came while the plan was still being made
+        assert answered < result["planned"]
         assert result["r"].status_code == 201
     finally:
         srv.should_exit = True
