@@ -221,11 +221,11 @@ class MissionSession:
         """The current world with the wind measured over the window (the scenario's wind
         where the samples carry none)."""
         def build():
-            duration = sum(float(np.sum(b[4])) for b in self._window)
+            duration = sum(b[0] for b in self._window)
             if duration <= 0:
                 return self.ctx.world
-            wx = sum(float(np.sum(np.asarray(b[3].wind_x_mps) * b[4])) for b in self._window)
-            wy = sum(float(np.sum(np.asarray(b[3].wind_y_mps) * b[4])) for b in self._window)
+            wx = sum(b[6] for b in self._window)
+            wy = sum(b[7] for b in self._window)
             return replace(self.ctx.world, wind_xy_mps=(wx / duration, wy / duration))
         return self._per_batch("world_now", build)
 
@@ -295,12 +295,15 @@ class MissionSession:
             raise InputError(f"samples: missing column(s) {missing} (need t_s, power_W or "
                              "voltage_V and current_A, x_m, y_m)")
         for col in needed:
-            values = pd.to_numeric(frame[col], errors="coerce").to_numpy(float)
+            floats = frame[col].dtype == np.float64  # JSON numbers: no text to convert
+            values = (frame[col].to_numpy() if floats
+                      else pd.to_numeric(frame[col], errors="coerce").to_numpy(float))
             bad = np.flatnonzero(~np.isfinite(values))
             if bad.size:
                 raise InputError(f"samples: {col} is not a finite number at row {int(bad[0])} "
                                  f"({frame[col].iloc[int(bad[0])]!r})")
-            frame[col] = values
+            if not floats:
+                frame[col] = values
         t = frame["t_s"].to_numpy(float)
         prev = np.r_[self._t_last if self._t_last is not None else -np.inf, t[:-1]]
         back = np.flatnonzero(t <= prev)
@@ -346,8 +349,10 @@ class MissionSession:
     def _remember(self, duration_s, distance_m, measured_J, state, dt) -> None:
         """Keep the last ``window_s`` of batches: what was measured and the motion, so any
         model's prediction for the same motion can be made."""
-        # the last item: this batch's energy predicted by the plan's model (filled lazily)
-        self._window.append([duration_s, distance_m, measured_J, state, dt, None])
+        # item 5: this batch's energy predicted by the plan's model (filled lazily);
+        # items 6, 7: the wind's time integrals [m] (the window's mean wind, summed once)
+        wind = [float(np.sum(np.asarray(w) * dt)) for w in (state.wind_x_mps, state.wind_y_mps)]
+        self._window.append([duration_s, distance_m, measured_J, state, dt, None, *wind])
         span = sum(b[0] for b in self._window)
         while len(self._window) > 1 and span - self._window[0][0] >= self.window_s:
             span -= self._window.popleft()[0]
