@@ -312,3 +312,13 @@ def test_bench_sweep_small_run_meets_its_own_bookkeeping(tmp_path):
     assert resume["resumed"] == resume["rows_at_kill"] >= 3
     assert resume["resumed"] + resume["ran_after"] == 6
     assert resume["redone"] == 0 and resume["stray_processes"] == 0
+
+
+def test_local_workers_keep_glibcs_own_trim_threshold():
+    """Dask's MALLOC_TRIM_THRESHOLD_ = 64 KiB made every run twice as slow (runner.py)."""
+    from orange_plan.sweep.runner import dask_client
+
+    with dask_client(1) as client:
+        environ = client.run(lambda: dict(os.environ))
+    (env,) = environ.values()
+    assert "MALLOC_TRIM_THRESHOLD_" not in env and env.get("OMP_NUM_THREADS") == "1"
