@@ -52,7 +52,8 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]
         return
     if workers < 1:
         raise InputError(f"--workers = {workers} must be >= 1")
-    with dask.config.set({ENVIRON_KEY: worker_environ()}), \
+    environ = worker_environ()
+    with dask.config.set({ENVIRON_KEY: environ}), _environ_kept(environ), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                          host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
                          death_timeout=DEATH_TIMEOUT_S) as cluster, Client(cluster) as client:
@@ -60,6 +61,24 @@ def dask_client(workers: int = 2, scheduler: str | None = None) -> Iterator[Any]
 
 
 ENVIRON_KEY = "distributed.nanny.pre-spawn-environ"
+
+
+@contextlib.contextmanager
+def _environ_kept(keys) -> Iterator[None]:
+    """Undo, on exit, what Dask's nanny writes into this process's own environment before
+    spawning a worker (``os.environ.update(pre_spawn_env)``), which would otherwise reach
+    every later subprocess of this process."""
+    import os
+
+    saved = {k: os.environ.get(k) for k in keys}
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def worker_environ() -> dict:
