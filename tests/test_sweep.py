@@ -44,12 +44,19 @@ def write_sweep(folder, grid=None, seeds=2, **top) -> os.PathLike:
 @pytest.fixture
 def cluster():
     """LocalCluster: 2 worker processes, 1 thread each, on 127.0.0.1; none left afterwards."""
+    import dask
     from distributed import LocalCluster
 
+    from orange_plan.sweep.runner import ENVIRON_KEY, worker_environ
+
     before = {p.pid for p in psutil.Process().children(recursive=True)}
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as c:
+    environ = dict(os.environ)  # the nanny writes its worker variables into this process's
+    with dask.config.set({ENVIRON_KEY: worker_environ()}), LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+            dashboard_address=None) as c:
         yield c
+    os.environ.clear()
+    os.environ.update(environ)
     assert_no_children_left(before)
 
 
@@ -312,3 +319,17 @@ def test_bench_sweep_small_run_meets_its_own_bookkeeping(tmp_path):
     assert resume["resumed"] == resume["rows_at_kill"] >= 3
     assert resume["resumed"] + resume["ran_after"] == 6
     assert resume["redone"] == 0 and resume["stray_processes"] == 0
+
+
+def test_local_workers_keep_glibcs_own_trim_threshold():
+    """Dask's MALLOC_TRIM_THRESHOLD_ = 64 KiB made every run twice as slow (runner.py)."""
+    from orange_plan.sweep.runner import dask_client
+
+    before = dict(os.environ)
+    with dask_client(1) as client:
+        environ = client.run(lambda: dict(os.environ))
+    (env,) = environ.values()
+    assert env.get("OMP_NUM_THREADS") == "1"
+    assert "MALLOC_TRIM_THRESHOLD_" not in env or env["MALLOC_TRIM_THRESHOLD_"] == before.get(
+        "MALLOC_TRIM_THRESHOLD_")  # only a threshold the user set is passed on
+    assert dict(os.environ) == before  # the nanny's writes into this process are undone
