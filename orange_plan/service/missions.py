@@ -15,6 +15,7 @@ A request to a mission still being rebuilt waits for it.
 
 from __future__ import annotations
 
+import gc
 import logging
 import secrets
 import threading
@@ -131,6 +132,7 @@ class MissionRegistry:
         self.store.add_mission(row)
         with self._guard:
             self._live[row.id] = live
+        settle_heap()
         return live
 
     def ids(self) -> list[str]:
@@ -153,6 +155,7 @@ class MissionRegistry:
             live = self._rebuild(row)
             with self._guard:
                 self._live[mission_id] = live
+            settle_heap()
             return live
 
     def delete(self, mission_id: str) -> None:
@@ -292,6 +295,18 @@ class MissionRegistry:
         log.info("mission %s rebuilt: %d events in %.1f s", row.id, len(events),
                  time.perf_counter() - t0)
         return live
+
+
+def settle_heap() -> None:
+    """Collect, then freeze what is left (``gc.freeze``): a mission's roadmap, fields and
+    plan (hundreds of thousands of objects) live as long as the mission, and every full
+    collection would walk them again. Measured: with 20 missions a full collection took 0.3-0.7
+    s, in the middle of a telemetry request (the whole p99 of ``bench service``). Frozen
+    objects are still freed when no longer referenced; only reference cycles among them wait
+    for the next ``settle_heap`` (which unfreezes first)."""
+    gc.unfreeze()
+    gc.collect()
+    gc.freeze()
 
 
 def _state_event(kind: str, payload: dict) -> dict:
