@@ -66,8 +66,9 @@ MAX_BUDGET_TRIES = 8
 TIME_TOLERANCE = 1e-6
 """Relative overrun of the time limit accepted as the optimiser's round-off [-]."""
 TIME_HEADROOM = 0.003
-"""Share of the time left the search keeps back for the driven profile's ramps and stops
-beyond the probe's estimate [-] (measured overruns on the campus example: up to 0.13 %)."""
+"""Share of the time left a warm replan's search keeps back for the driven profile's ramps
+and stops beyond the probe's estimate [-] (measured overruns on the campus example: up to
+0.13 %; a cold plan keeps none: it costs 1-2 % of coverage on the time-limited campus)."""
 BITSTAR_S = 0.5
 """BIT* budget per refined leg [s]."""
 BITSTAR_LEGS = 3
@@ -137,7 +138,8 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
 
 def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=None,
                 optimise_speed: bool = True, bitstar_s: float = BITSTAR_S,
-                bitstar_legs: int = BITSTAR_LEGS, seed: int = 0, probe=None) -> Plan:
+                bitstar_legs: int = BITSTAR_LEGS, seed: int = 0, probe=None,
+                time_headroom: float = 0.0) -> Plan:
     """The tour search on a prepared setup: orienteering under the budgets, BIT* on the
     costliest legs, speeds, and the exact per-vertex check, the budget lowered by any deficit
     until every vertex keeps its margin (see the module docstring)."""
@@ -146,8 +148,9 @@ def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=Non
     remaining = reach.energy_available_J - reach.energy_used_J
     reserve_share, time_factor = _probe(setup) if probe is None else probe
     # The probe's factor comes from one trip; a whole tour's ramps and stops differ by a
-    # fraction of a percent, which would fail the exact time check and cost a second search.
-    time_factor *= 1.0 + TIME_HEADROOM
+    # fraction of a percent, which can fail the exact time check and cost a second search:
+    # a replan, which must be quick, keeps ``time_headroom`` of the time back instead.
+    time_factor *= 1.0 + time_headroom
     reserve_guess = reserve_share * remaining
     budget = remaining - reserve_guess
     time_left = _time_left_s(ctx, start)
@@ -235,10 +238,12 @@ class TourPlanner:
                                     self.max_candidates, step)
             self.probe = _probe(self.setup)
             setup = self.setup
+            headroom = 0.0  # a first plan may search twice: it is not made mid-mission
         else:  # the first plan's budget guesses serve: the exact check corrects them
             setup = warm_setup(self.setup, ctx, start)
+            headroom = TIME_HEADROOM
         return search_tour(ctx, setup, start, t0=t0, step=step, probe=self.probe,
-                           **self.search)
+                           time_headroom=headroom, **self.search)
 
 
 def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
