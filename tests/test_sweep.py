@@ -47,7 +47,7 @@ def cluster():
     import dask
     from distributed import LocalCluster
 
-    from orange_plan.sweep.runner import ENVIRON_KEY, worker_environ
+    from orange_plan.cluster import ENVIRON_KEY, worker_environ
 
     before = {p.pid for p in psutil.Process().children(recursive=True)}
     environ = dict(os.environ)  # the nanny writes its worker variables into this process's
@@ -322,8 +322,8 @@ def test_bench_sweep_small_run_meets_its_own_bookkeeping(tmp_path):
 
 
 def test_local_workers_keep_glibcs_own_trim_threshold():
-    """Dask's MALLOC_TRIM_THRESHOLD_ = 64 KiB made every run twice as slow (runner.py)."""
-    from orange_plan.sweep.runner import dask_client
+    """Dask's MALLOC_TRIM_THRESHOLD_ = 64 KiB made every run twice as slow (orange_plan/cluster.py)."""
+    from orange_plan.cluster import dask_client
 
     before = dict(os.environ)
     with dask_client(1) as client:

@@ -62,6 +62,13 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError, OrangeError
+from orange_plan.sweep.flight import (
+    _Flown,
+    _fmt,
+    _simulate,
+    fly_open_loop,
+    stranding_upper_bound,
+)
 
 METHODS = ("session", "open_loop", "lawnmower", "oracle")
 """Method ids: (a), (b), (c), (d)."""
@@ -253,61 +260,6 @@ def oracle_context(ctx, truth):
 # --- flights ------------------------------------------------------------------------------
 
 
-@dataclass
-class _Flown:
-    """Segments flown so far: positions and power per sample, and what happened."""
-
-    dt: float
-    xy: list
-    power: list
-    e_avail: float
-    replans: int = 0
-    returned_by_rule: bool = False
-    note: str = ""
-
-    @property
-    def energy_drawn_J(self) -> float:
-        """Energy drawn by the segments so far (recorded power, as ``outcome`` counts) [J]."""
-        return float(sum(np.sum(p) for p in self.power) * self.dt)
-
-    def add(self, frame, n: int | None = None) -> None:
-        n = len(frame) if n is None else n
-        self.xy.append(frame[["x_m", "y_m"]].to_numpy(float)[:n])
-        self.power.append(frame["power_W"].to_numpy(float)[:n])
-
-    def outcome(self, ctx) -> dict:
-        from orange_plan.bench.plan import HOME_TOLERANCE_M, flown_footprint
-
-        xy = np.vstack(self.xy)
-        cum = np.cumsum(np.concatenate(self.power)) * self.dt
-        empty = np.flatnonzero(cum > self.e_avail)
-        end = int(empty[0]) + 1 if empty.size else len(xy)
-        away = float(np.hypot(*(xy[-1] - np.asarray(ctx.world.home_xy_m))))
-        stranded = bool(empty.size) or away > HOME_TOLERANCE_M
-        area = flown_footprint(ctx.world, xy[:end], ctx.scenario.mission.sensor_radius_m).area
-        return {"coverage_m2": float(area), "energy_left_J": float(self.e_avail - cum[-1]),
-                "stranded": stranded, "duration_s": float(len(xy) * self.dt),
-                "replans": self.replans, "returned_early": self.returned_by_rule,
-                "note": self.note}
-
-
-def _simulate(ctx, xy, speed, truth, seed, rate, energy_start_J: float = 0.0):
-    from orange_plan.sim.route import Route
-    from orange_plan.sim.simulator import simulate
-
-    return simulate(ctx, Route(np.asarray(xy, float), np.asarray(speed, float), "bench mission"),
-                    truth, seed=int(seed), sample_rate_Hz=rate,
-                    energy_start_J=max(float(energy_start_J), 0.0))
-
-
-def fly_open_loop(ctx, plan, truth, seed: int, rate: float) -> dict:
-    """(b) and (d): the tour flown as planned."""
-    sim = _simulate(ctx, plan.xy_m, plan.speed_mps, truth, seed, rate)
-    flown = _Flown(1.0 / rate, [], [], sim.energy_available_J)
-    flown.add(sim.frame)
-    return flown.outcome(ctx)
-
-
 def fly_lawnmower(kit: _MapKit, truth, seed: int, rate: float) -> dict:
     """(c): the lawnmower turned home by the PX4-style rule."""
     from orange_plan.bench.px4_rtl import fly_with_return_rule
@@ -448,15 +400,6 @@ def _median(values):
     return float(statistics.median(values)) if values else None
 
 
-def stranding_upper_bound(k: int, n: int, level: float = 0.95) -> float | None:
-    """One-sided Clopper-Pearson upper bound of the stranding probability [-]."""
-    from scipy.stats import beta
-
-    if n <= 0:
-        return None
-    return 1.0 if k >= n else float(beta.ppf(level, k + 1, n - k))
-
-
 def summarise(missions: Sequence[dict], methods=METHODS, family: str | None = None) -> list[dict]:
     """One row per method: counts and medians over the missions (of one family or all)."""
     chosen = [m for m in missions if family is None or m["family"] == family]
@@ -515,7 +458,7 @@ def run_mission_study(n: int, seed: int = 0, n_maps: int = 10, workers: int = 1,
                       progress_every: int = 10, scheduler: str | None = None) -> dict:
     """Fly ``n`` missions (``mission_specs``; mission ``i`` has seed ``seed + i``).
 
-    The missions run on Dask like ``orange-plan sweep``'s runs (``sweep.runner``): a local
+    The missions run on Dask like ``orange-plan sweep``'s runs (``orange_plan.cluster``): a local
     cluster of ``workers`` processes, or the existing cluster of ``scheduler``
     (tcp://HOST:PORT); ``on_progress`` gets the partial result every ``progress_every``
     missions.
@@ -544,7 +487,7 @@ def run_mission_study(n: int, seed: int = 0, n_maps: int = 10, workers: int = 1,
             on_progress(study_result(done, n, seed, time.perf_counter() - t0, specs[0], False))
 
     # the sweep's path: Dask, a local cluster of ``workers`` processes or ``scheduler``'s
-    from orange_plan.sweep.runner import dask_client, run_tasks
+    from orange_plan.cluster import dask_client, run_tasks
     from orange_plan.sweep.spec import run_id
 
     keys = {f"mission-{run_id({'spec': asdict(spec), 'seed': seed + i})}": i
@@ -556,12 +499,6 @@ def run_mission_study(n: int, seed: int = 0, n_maps: int = 10, workers: int = 1,
 
 
 # --- presentation ------------------------------------------------------------------------
-
-
-def _fmt(value, spec: str) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "-"
-    return format(value, spec)
 
 
 SHORT_LABELS = {"session": "(a) session", "open_loop": "(b) open loop",

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError, OrangeError
+from orange_plan.sweep.flight import HOME_TOLERANCE_M, flown_footprint
 
 METHODS = ("lawnmower", "distance", "physics")
 """Method ids: (a), (b), (c)."""
@@ -58,9 +59,6 @@ TAGS = {"kiwibot_campus": "hilly", "ar_drone_wind": "windy", "marine_survey": "c
 
 TARGETS = {"coverage_of_bound_open": 0.80, "ratio_vs_lawnmower": 1.3, "strandings_physics": 0,
            "planner_s_kiwibot": 20.0, "planner_s_large": 90.0}
-
-HOME_TOLERANCE_M = 1.0
-"""A flight whose last position is farther than this from home did not get home [m]."""
 
 Planner = Callable[..., object]
 """``planner(ctx, cost="physics" | "distance") -> Plan`` (``planning.plan.Plan``)."""
@@ -269,19 +267,6 @@ def coverage_bound_m2(ctx) -> float:
     if sc.mission.time_limit_s is not None:
         drive_m = min(drive_m, sc.robot.v_max_mps * ctx.duty_cycle * sc.mission.time_limit_s)
     return float(min(ctx.world.map.free_space.area, 2 * r * drive_m + math.pi * r * r))
-
-
-def flown_footprint(world, xy, radius_m: float):
-    """``coverage.footprint`` of recorded positions, the polyline first simplified by 2 % of r
-    (10 Hz samples are centimetres apart; the buffer's area changes by well under 1 %)."""
-    import shapely
-
-    from orange_plan.planning.coverage import footprint
-
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    if len(xy) > 2:
-        xy = shapely.get_coordinates(shapely.LineString(xy).simplify(0.02 * radius_m))
-    return footprint(world, xy, radius_m)
 
 
 def flight_of(ctx, sim, seed: int, bound_m2: float, turned_home_s=None) -> Flight:

@@ -54,7 +54,7 @@ def write_seed_sweep(folder: Path, scenario: Path, runs: int, vertices: int,
 def run_speedup_bench(scenario: Path, runs: int = 12, repeats: int = 3, vertices: int = 1000,
                       step: Callable[[str], None] | None = None) -> dict:
     """Time the sweep with 1 and 2 local workers (module docstring); return the figures."""
-    from orange_plan.sweep.runner import dask_client, run_tasks
+    from orange_plan.cluster import dask_client, run_tasks
     from orange_plan.sweep.spec import load_sweep
     from orange_plan.sweep.store import ResultStore
     from orange_plan.sweep.task import run_one

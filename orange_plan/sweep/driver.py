@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from orange_plan.sweep.runner import dask_client, run_tasks
+from orange_plan.cluster import dask_client, run_tasks
 from orange_plan.sweep.spec import Sweep
 from orange_plan.sweep.store import ResultStore
 from orange_plan.sweep.task import run_one

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from orange_plan.bench.mission import _fmt, stranding_upper_bound
+from orange_plan.sweep.flight import _fmt, stranding_upper_bound
 
 
 def summary_rows(rows: pd.DataFrame, grid_keys) -> list[dict]:
