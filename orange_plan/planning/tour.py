@@ -760,25 +760,29 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
     """
     field, ex = setup.to_home, setup.reach.exact
     k = len(ex.model.theta)
-    energy, grad = np.zeros(len(ids)), np.zeros((len(ids), k))
+    ids = np.asarray(ids, int)
+    # a walk passes some vertices more than once (lane ends, shared transits): one return each
+    unique, first, back_to = np.unique(ids, return_index=True, return_inverse=True)
+    energy, grad = np.zeros(len(unique)), np.zeros((len(unique), k))
     rows, paths = [], []
-    for n, v in enumerate(np.asarray(ids, int)):
+    for n, v in enumerate(unique):
         if v == setup.roadmap.home_index:
             continue
         if not np.isfinite(field.energy_J[v]):
-            raise PlanningError(f"walk vertex {n} at {tuple(np.round(setup.roadmap_xy_m[v], 2))}"
-                                " m has no roadmap return home")
+            raise PlanningError(f"walk vertex {int(first[n])} at "
+                                f"{tuple(np.round(setup.roadmap_xy_m[v], 2))} m has no roadmap "
+                                "return home")
         xy = clean_polyline(setup.roadmap_xy_m[field.path(v)])
         if np.hypot(*(xy[-1] - xy[0])) > 1e-9 or len(xy) > 2:  # a vertex on home costs 0
             rows.append(n)
             paths.append(xy)
     if not rows:
-        return Driven(energy, np.zeros(len(ids)), grad)
+        return Driven(energy[back_to], np.zeros(len(ids)), grad[back_to])
     if ex.accel_max_mps2 is None:
         for n, xy in zip(rows, paths):
             back = drive(ex, xy, ex.speed_mps)
             energy[n], grad[n] = back.energy_J[-1], back.gradient[-1]
-        return Driven(energy, np.zeros(len(ids)), grad)
+        return Driven(energy[back_to], np.zeros(len(ids)), grad[back_to])
     # All returns driven together (one numpy loop over time): the same samples as driving
     # each alone, at a fraction of the cost of hundreds of scalar drives.
     from orange_plan.physics.profile import profile_energies_and_gradients
@@ -788,7 +792,7 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
     e, g = profile_energies_and_gradients(ex.model, steps, speeds, ex.accel_max_mps2,
                                           ex.duty_cycle, ex.world.wind_xy_mps, ex.sensor_rate_Hz)
     energy[rows], grad[rows] = e, g
-    return Driven(energy, np.zeros(len(ids)), grad)
+    return Driven(energy[back_to], np.zeros(len(ids)), grad[back_to])
 
 
 def _variance(reach: Reachability, energy_J, gradient, always: bool = False) -> np.ndarray:
