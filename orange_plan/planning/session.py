@@ -70,6 +70,7 @@ from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
 from orange_plan.identify.soc import SocCapacity
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.planning.coverage import footprint
+from orange_plan.planning.paths import distinct_vertices
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import prepare_reach, reserve_J, way_home
 from orange_plan.telemetry.recording import recording_from_frame
@@ -509,7 +510,7 @@ class MissionSession:
         """
         plan, k = self.plan, self._progress
         rest = np.vstack([self.position_xy_m, plan.xy_m[k + 1:]])
-        keep = np.r_[True, np.hypot(*np.diff(rest, axis=0).T) > 1e-9]
+        keep = distinct_vertices(rest)
         speeds = plan.speed_mps[k:-1][keep[1:]]
         rest = rest[keep]
         if len(rest) < 2:
