@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+from orange_plan.errors import OrangeError
 from orange_plan.model_builder import build_model
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.model import EnergyModel
 from orange_plan.scenario import Scenario, load_scenario
 from orange_plan.world.terrain import World
@@ -13,19 +15,31 @@ from orange_plan.world.terrain import World
 
 @dataclass(frozen=True)
 class Context:
-    """A scenario with its world and energy model."""
+    """A scenario with its world, energy model and operating conditions."""
 
     scenario: Scenario
     world: World
     model: EnergyModel
+    # The one source of duty cycle, sensor rate and wind for planning and simulation:
+    # ``Conditions.of(scenario)`` unless given (a session's measured wind, an oracle's truth).
+    conditions: Conditions | None = None
 
-    @property
-    def sensor_rate_Hz(self) -> float:
-        return self.scenario.ancillary.sensor_rate_Hz
+    def __post_init__(self):
+        if self.conditions is None:
+            object.__setattr__(self, "conditions", Conditions.of(self.scenario))
+            return
+        # Only the wind may be measured rather than set: a duty cycle or sensor rate that
+        # differs from the scenario's is a stale copy (replace(ctx, scenario=...) keeps the
+        # old conditions; use with_scenario).
+        sc = self.scenario
+        if (self.conditions.duty_cycle, self.conditions.sensor_rate_Hz) != (
+                sc.mission.duty_cycle, sc.ancillary.sensor_rate_Hz):
+            raise OrangeError(f"{sc.name}: conditions {self.conditions} disagree with the "
+                              "scenario's duty cycle or sensor rate (use Context.with_scenario)")
 
-    @property
-    def duty_cycle(self) -> float:
-        return self.scenario.mission.duty_cycle
+    def with_scenario(self, scenario: Scenario) -> Context:
+        """The same world and model under another scenario, its conditions rebuilt from it."""
+        return replace(self, scenario=scenario, conditions=None)
 
     @property
     def cruise_speed_mps(self) -> float:

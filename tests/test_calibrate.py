@@ -110,7 +110,7 @@ def test_sensor_rate_sweep_separates_s0_and_s1(ctx):
 
 def test_wheels_up_rows_inform_only_the_power_terms(ctx):
     truth = ctx.model.with_theta({"ancillary_W": 9.0})
-    rates = np.full(2000, ctx.sensor_rate_Hz)
+    rates = np.full(2000, ctx.conditions.sensor_rate_Hz)
     rec = recording_from_frame(sweep_frame(truth, rates, np.random.default_rng(1), True), "up")
     samples = recording_samples([rec], ctx)
     assert samples.wheels_up.all()
@@ -134,7 +134,7 @@ def test_written_scenario_loads_and_rebuilds_the_fitted_model(ctx, tmp_path):
     omega = ctx.scenario.omega
     assert again.scenario.robot.drag_coeff_kg_per_m == pytest.approx(cal.theta_["drag_kg_per_m"] * omega)
     assert again.scenario.ancillary_power_W == pytest.approx(
-        cal.theta_["ancillary_W"] + cal.theta_["sensor_W_per_Hz"] * ctx.sensor_rate_Hz)
+        cal.theta_["ancillary_W"] + cal.theta_["sensor_W_per_Hz"] * ctx.conditions.sensor_rate_Hz)
 
 
 @pytest.mark.parametrize("spread", [0.0, 0.1])

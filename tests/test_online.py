@@ -34,7 +34,7 @@ def ctx(tmp_path):
 def run(ctx, truth, seed=0):
     sim = simulate(ctx, Route(LOOP, np.full(5, 0.8), "loop"), truth, seed=seed, to_depletion=True)
     rec = recording_from_frame(sim.frame, "sim")
-    return sim, rec, recording_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    return sim, rec, recording_state(rec, ctx.world, sensor_rate_Hz=ctx.conditions.sensor_rate_Hz)
 
 
 def test_online_range_tracks_a_truth_the_offline_estimate_misses(ctx):
@@ -58,8 +58,8 @@ def test_online_range_tracks_a_truth_the_offline_estimate_misses(ctx):
     from orange_plan.physics.pathcost import segments_energy_jacobian, subdivide
 
     steps = subdivide(ctx.world, LOOP[:-1], LOOP[1:])
-    jac = segments_energy_jacobian(ctx.model, ctx.world, steps, 0.8, ctx.duty_cycle,
-                                   ctx.sensor_rate_Hz).sum(axis=0)
+    jac = segments_energy_jacobian(ctx.model, ctx.world, steps, 0.8,
+                                   ctx.conditions).sum(axis=0)
     ahead = est.estimate(jac, route.length_m)
     assert accuracy_pct(ahead.range_total_m, sim.distance_m) > 95.0
 

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.errors import InputError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import (
     heading_changes_rad,
@@ -62,7 +63,7 @@ def test_straight_segment_over_ramp_dem(tmp_path, corner):
     np.testing.assert_allclose(steps.horiz_m, 0.5)
     np.testing.assert_allclose(steps.dz_m, [0.0] + [0.05] * 22 + [0.0], atol=1e-6)  # float32 grid
 
-    e = segments_energy(reference_model(), world, [[0.0, 1.5]], [[12.0, 1.5]], 1.0, 1.0)
+    e = segments_energy(reference_model(), world, [[0.0, 1.5]], [[12.0, 1.5]], 1.0, Conditions(1.0))
     # traversal = (crr m g d + m g dz) / Omega = (0.05*10*9.81*12 + 10*9.81*1.1) / 0.8
     #           = (58.86 + 107.91) / 0.8 = 208.4625 J
     assert float(e.traversal_J[0]) == pytest.approx(208.4625)
@@ -72,7 +73,8 @@ def test_straight_segment_over_ramp_dem(tmp_path, corner):
 
     # Downhill: the ramp steps have F = 12.5 g (0.05 cos - 0.0995) < 0 and give nothing back
     # (max(0, .) per sub-step); only the two flat 0.5 m steps cost 12.5 * 9.81 * 0.05 * 1 m.
-    back = segments_energy(reference_model(), world, [[12.0, 1.5]], [[0.0, 1.5]], 1.0, 1.0)
+    back = segments_energy(reference_model(), world, [[12.0, 1.5]], [[0.0, 1.5]], 1.0,
+                           Conditions(1.0))
     assert float(back.traversal_J[0]) == pytest.approx(12.5 * 9.81 * 0.05 * 1.0)
 
 
@@ -97,7 +99,7 @@ def test_segment_crossing_a_surface(tmp_path):
     # second: 7.3 m in ceil(7.3 / 0.5) = 15 steps of 0.4867 m, none on grass
     assert (steps.segment == 1).sum() == 15 and (steps.crr[steps.segment == 1] == 0.05).all()
 
-    e = segments_energy(reference_model(), world, [[2.0, 2.0]], [[18.0, 2.0]], 0.5, 0.8)
+    e = segments_energy(reference_model(), world, [[2.0, 2.0]], [[18.0, 2.0]], 0.5, Conditions(0.8))
     # traversal = 12.5 * 9.81 * (0.05 * 8 + 0.1 * 8) = 147.15 J
     assert float(e.traversal_J[0]) == pytest.approx(147.15)
     # ancillary: 10 W * 16 m / (0.5 m/s * 0.8) = 400 J
@@ -107,7 +109,7 @@ def test_segment_crossing_a_surface(tmp_path):
 def test_turning_charged_at_interior_vertices(tmp_path):
     world = world_of(write_map(tmp_path), home=(2.0, 2.0))
     path = [[2.0, 2.0], [8.0, 2.0], [8.0, 6.0], [2.0, 6.0]]  # two left quarter turns
-    pe = path_energy(reference_model(turn_J_per_rad=3.0), world, path, 1.0, 1.0)
+    pe = path_energy(reference_model(turn_J_per_rad=3.0), world, path, 1.0, Conditions(1.0))
     # 3 J/rad * pi/2 at each interior vertex, charged to the segment leaving it
     np.testing.assert_allclose(pe.segments.turning_J, [0.0, 1.5 * math.pi, 1.5 * math.pi])
     # flat default ground, 16 m: rolling 12.5*9.81*0.05*16 = 98.1 J, ancillary 10 W * 16 s
@@ -116,7 +118,8 @@ def test_turning_charged_at_interior_vertices(tmp_path):
     assert pe.cumulative_J.shape == (4,) and pe.cumulative_J[0] == 0.0
     assert np.all(np.diff(pe.cumulative_J) > 0)
     # without a turning term the same path costs 3 pi less
-    assert path_energy(reference_model(), world, path, 1.0, 1.0).total_J == pytest.approx(
+    plain = path_energy(reference_model(), world, path, 1.0, Conditions(1.0))
+    assert plain.total_J == pytest.approx(
         pe.total_J - 3 * math.pi)
 
 
@@ -142,8 +145,8 @@ def test_segments_energy_jacobian_matches_energy(tmp_path):
     model = reference_model()
     a, b = [[0.5, 0.5], [11.0, 2.5]], [[11.0, 2.5], [3.0, 1.0]]
     steps = subdivide(world, a, b)
-    jac = segments_energy_jacobian(model, world, steps, [0.8, 1.2], 0.9)
-    e = segments_energy(model, world, a, b, [0.8, 1.2], 0.9)
+    jac = segments_energy_jacobian(model, world, steps, [0.8, 1.2], Conditions(0.9))
+    e = segments_energy(model, world, a, b, [0.8, 1.2], Conditions(0.9))
     assert jac.shape == (2, 3)
     np.testing.assert_allclose(jac @ model.theta, e.ancillary_J + e.traversal_J)
 
@@ -153,9 +156,9 @@ def test_pathcost_bad_inputs(tmp_path):
     with pytest.raises(InputError, match=r"must both have shape \(n, 2\)"):
         subdivide(world, [[0.0, 0.0, 0.0]], [[1.0, 1.0, 1.0]])
     with pytest.raises(InputError, match="speed_mps must be > 0"):
-        segments_energy(reference_model(), world, [[1.0, 1.0]], [[2.0, 1.0]], 0.0, 1.0)
+        segments_energy(reference_model(), world, [[1.0, 1.0]], [[2.0, 1.0]], 0.0, Conditions(1.0))
     with pytest.raises(InputError, match="at least two"):
-        path_energy(reference_model(), world, [[1.0, 1.0]], 1.0, 1.0)
+        path_energy(reference_model(), world, [[1.0, 1.0]], 1.0, Conditions(1.0))
 
 
 # --- properties -------------------------------------------------------------------------
@@ -221,7 +224,10 @@ def test_segment_energy_additive_when_split(s, length, split, duty):
 def flat_windy_world(tmp_path_factory):
     folder = tmp_path_factory.mktemp("flat")
     boundary = feature("boundary", "Polygon", [[[0, 0], [50, 0], [50, 50], [0, 50], [0, 0]]])
-    return world_of(write_map(folder, [boundary]), home=(1.0, 1.0), wind=(2.0, -1.0))
+    return world_of(write_map(folder, [boundary]), home=(1.0, 1.0), wind=WINDY.wind_xy_mps)
+
+
+WINDY = Conditions(0.7, 0.0, (2.0, -1.0))  # the additivity test's duty cycle and wind
 
 
 @settings(max_examples=30, deadline=None)
@@ -231,7 +237,7 @@ def test_path_segment_energy_additive_when_split(flat_windy_world, ax, ay, bx, b
     model = no_regen_model()
     a, b = np.array([ax, ay]), np.array([bx, by])
     mid = a + split * (b - a)
-    whole = segments_energy(model, flat_windy_world, [a], [b], speed, 0.7)
-    halves = segments_energy(model, flat_windy_world, [a, mid], [mid, b], speed, 0.7)
+    whole = segments_energy(model, flat_windy_world, [a], [b], speed, WINDY)
+    halves = segments_energy(model, flat_windy_world, [a, mid], [mid, b], speed, WINDY)
     assert halves.traversal_J.sum() == pytest.approx(whole.traversal_J[0], rel=1e-9, abs=1e-9)
     assert halves.ancillary_J.sum() == pytest.approx(whole.ancillary_J[0], rel=1e-9, abs=1e-9)

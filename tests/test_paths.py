@@ -30,8 +30,8 @@ def hill(tmp_path_factory):
 def test_energy_path_is_exact_and_drivable(hill):
     ctx, exact, rm = hill
     p = roadmap_path(exact, rm, (5.0, 20.0), (55.0, 20.0))
-    again = path_energy(ctx.model, ctx.world, p.xy_m, exact.speed_mps, exact.duty_cycle,
-                        exact.sensor_rate_Hz, exact.accel_max_mps2)
+    again = path_energy(ctx.model, ctx.world, p.xy_m, exact.speed_mps, exact.conditions,
+                        exact.accel_max_mps2)
     assert p.energy_J == pytest.approx(again.total_J, rel=1e-12)
     assert ctx.world.segments_free(p.xy_m[:-1], p.xy_m[1:]).all()
     assert np.allclose(p.xy_m[[0, -1]], [[5, 20], [55, 20]])

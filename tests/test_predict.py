@@ -52,7 +52,7 @@ def test_predicted_sd_is_parameter_plus_discrepancy_by_hand(tmp_path):
 def test_replay_error_sign_and_rmse(tmp_path):
     ctx = load_context(write_scenario(tmp_path))
     result = replay(recording_from_frame(drive(2 * HAND_POWER_W)), ctx.model, ctx.world,
-                    ctx.sensor_rate_Hz)
+                    ctx.conditions.sensor_rate_Hz)
     assert result.energy_error_pct == pytest.approx(-50.0)   # predicts half: under-predicts
     assert result.rmse_W == pytest.approx(HAND_POWER_W)
     assert result.energy_recorded_J == pytest.approx(2 * HAND_POWER_W * 16.0)

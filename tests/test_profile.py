@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from orange_plan.context import load_context
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import path_energy, subdivide
 from orange_plan.physics.profile import SAMPLE_DT_S, Driver, profile_energy
 from orange_plan.planning.paths import evaluate_path
@@ -52,8 +53,8 @@ def test_planned_duration_and_energy_of_a_straight_run_by_hand(tmp_path):
     path = np.array([[1.0, 1.0], [19.0, 1.0]])
     v, a = 0.5, ctx.scenario.robot.accel_max_mps2
     model = ctx.model.with_theta({"rolling_kg": 0.0})
-    ref = path_energy(model, ctx.world, path, v, 1.0, ctx.sensor_rate_Hz)
-    driven = path_energy(model, ctx.world, path, v, 1.0, ctx.sensor_rate_Hz, a)
+    ref = path_energy(model, ctx.world, path, v, ctx.conditions)
+    driven = path_energy(model, ctx.world, path, v, ctx.conditions, a)
     p_anc = float(model.ancillary_power_W(_flat(ctx)))
     assert ref.total_J == pytest.approx(p_anc * 18.0 / v)  # SPEC §7: L / (v D)
     assert driven.duration_s == pytest.approx(18.0 / v + v / a, abs=3 * SAMPLE_DT_S)
@@ -65,7 +66,7 @@ def test_planned_duration_and_energy_of_a_straight_run_by_hand(tmp_path):
 def _flat(ctx):
     from orange_plan.physics.range import flat_state
 
-    return flat_state(1.0, ctx.world.default_crr, ctx.sensor_rate_Hz)
+    return flat_state(1.0, ctx.world.default_crr, ctx.conditions.sensor_rate_Hz)
 
 
 def test_driver_ends_at_rest_with_the_duty_cycle_waited_out():
@@ -121,7 +122,8 @@ def test_profile_energy_reports_each_vertex_on_the_way(yards):
     ctx, _ = yards["reference"]
     path = np.array([[1.0, 1.0], [9.0, 1.0], [9.0, 5.0]])
     steps = subdivide(ctx.world, path[:-1], path[1:])
-    drive = profile_energy(ctx.model, steps, np.full(steps.segment.size, 0.8), 0.5, 0.8)
+    drive = profile_energy(ctx.model, steps, np.full(steps.segment.size, 0.8), 0.5,
+                           Conditions(0.8))
     energy, time = drive.at_arclength([0.0, 8.0, 12.0])
     assert energy[0] == 0.0 and time[0] == 0.0
     assert 0 < energy[1] < energy[2] <= drive.total_J and 0 < time[1] < time[2]

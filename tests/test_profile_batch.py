@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from planning_worlds import write_world
 
 from orange_plan.context import load_context
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import subdivide
 from orange_plan.physics.profile import (
     drive_path,
@@ -114,7 +115,7 @@ def test_batch_equals_one_drive_path_per_path(worlds, variant, n_paths, base_see
     world, model = ctx.world, ctx.model
     seeds = [base_seed + 2 * i for i in range(n_paths)]
     steps, speeds = random_paths(world, seeds, lengths[:n_paths], [s + 1 for s in seeds])
-    args = (accel, duty, world.wind_xy_mps, ctx.sensor_rate_Hz)
+    args = (accel, Conditions(duty, ctx.conditions.sensor_rate_Hz, ctx.conditions.wind_xy_mps))
     reference = [drive_path(s, v, *args) for s, v in zip(steps, speeds)]
     assert any(np.any(s.cos_t < 1.0) for s in steps)  # graded paths
     assert_same_drive(drive_paths(steps, speeds, *args), reference)
@@ -134,7 +135,8 @@ def test_time_step_and_stop_interval_as_drive_path(worlds, dt, every, duty):
     """Other sample periods and frequent duty-cycle stops (a stop every few samples)."""
     ctx = worlds["reference"]
     steps, speeds = random_paths(ctx.world, [3, 5, 7, 9], [30.0, 2.0, 75.0, 0.5], [4, 6, 8, 10])
-    args = (0.7, duty, ctx.world.wind_xy_mps, ctx.sensor_rate_Hz, dt, every)
+    args = (0.7, Conditions(duty, ctx.conditions.sensor_rate_Hz, ctx.conditions.wind_xy_mps), dt,
+            every)
     reference = [drive_path(s, v, *args) for s, v in zip(steps, speeds)]
     assert_same_drive(drive_paths(steps, speeds, *args), reference)
     energy, gradient = profile_energies_and_gradients(ctx.model, steps, speeds, *args)
@@ -156,15 +158,15 @@ def test_short_and_zero_length_sub_steps(worlds):
     xy_c = np.array([[70.0, 50.0], [70.0, 50.0001]])  # shorter than the arrival tolerance + 1e-6
     steps = [subdivide(world, xy[:-1], xy[1:]) for xy in (xy_a, xy_b, xy_c)]
     speeds = [np.full(s.horiz_m.size, 2.0) for s in steps]
-    args = (2.0, 0.8, world.wind_xy_mps, 5.0)
+    args = (2.0, Conditions(0.8, 5.0, worlds["reference"].conditions.wind_xy_mps))
     assert_same_drive(drive_paths(steps, speeds, *args),
                       [drive_path(s, v, *args) for s, v in zip(steps, speeds)])
 
 
 def test_no_paths(worlds):
     model = worlds["reference"].model
-    assert drive_paths([], [], 0.5, 0.9) == []
-    energy, gradient = profile_energies_and_gradients(model, [], [], 0.5, 0.9)
+    assert drive_paths([], [], 0.5, Conditions(0.9)) == []
+    energy, gradient = profile_energies_and_gradients(model, [], [], 0.5, Conditions(0.9))
     assert energy.shape == (0,) and gradient.shape == (0, len(model.theta))
 
 
@@ -172,4 +174,4 @@ def test_lengths_must_agree(worlds):
     world = worlds["reference"].world
     steps = subdivide(world, [[1.0, 1.0]], [[5.0, 1.0]])
     with pytest.raises(ValueError, match="speed"):
-        drive_paths([steps, steps], [np.ones(steps.horiz_m.size)], 0.5, 0.9)
+        drive_paths([steps, steps], [np.ones(steps.horiz_m.size)], 0.5, Conditions(0.9))

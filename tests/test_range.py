@@ -190,7 +190,7 @@ def test_time_limit_bounds_the_range(tmp_path):
     free = simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr)
     assert free.mission_time_s > 60.0 and free.within_time_limit and free.reason is None
     report = range_report(ctx)
-    v_max, duty = ctx.scenario.robot.v_max_mps, ctx.duty_cycle
+    v_max, duty = ctx.scenario.robot.v_max_mps, ctx.conditions.duty_cycle
     for r in (report.simplified, report.generalised):
         assert not r.within_time_limit and "exceeds mission.time_limit_s = 60 s" in r.reason
         assert r.time_limited.mission_time_s <= 60.0 * (1 + 1e-9)

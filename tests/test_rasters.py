@@ -8,6 +8,7 @@ from planning_worlds import write_world
 
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import path_energy, segments_energy, subdivide
 from orange_plan.world.rasters import build_rasters
 
@@ -44,9 +45,10 @@ def test_raster_segment_check(ctx):
 def test_fast_subdivide_energy_within_one_percent_of_exact(ctx):
     r = build_rasters(ctx.world)
     path = np.array([[2.0, 2.0], [18.0, 3.0], [35.0, 22.0], [16.0, 28.0]])
-    exact = path_energy(ctx.model, ctx.world, path, 1.0, 0.9).total_J
+    exact = path_energy(ctx.model, ctx.world, path, 1.0, Conditions(0.9)).total_J
     steps = subdivide(ctx.world, path[:-1], path[1:], terrain=r)
-    fast = segments_energy(ctx.model, ctx.world, None, None, 1.0, 0.9, steps=steps).total_J.sum()
+    fast = segments_energy(ctx.model, ctx.world, None, None, 1.0, Conditions(0.9),
+                           steps=steps).total_J.sum()
     assert fast == pytest.approx(exact, rel=0.01)
 
 

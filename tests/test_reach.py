@@ -50,8 +50,8 @@ def test_goal_answers_are_exact_round_trips(world, reach):
     c = reach.exact
     for g in goals:
         assert g.valid and g.name in "ab"
-        e = path_energy(world.model, world.world, g.path_xy_m, c.speed_mps, c.duty_cycle,
-                        c.sensor_rate_Hz, c.accel_max_mps2)
+        e = path_energy(world.model, world.world, g.path_xy_m, c.speed_mps, c.conditions,
+                        c.accel_max_mps2)
         assert g.energy_to_goal_J + g.energy_goal_to_home_J == pytest.approx(e.total_J, rel=1e-12)
         assert g.reserve_J > 0  # confidence reserve from the model's parameter variance
         assert g.margin_J == pytest.approx(reach.energy_available_J - e.total_J - g.reserve_J)
@@ -153,8 +153,8 @@ def test_time_limit_makes_far_goals_infeasible_with_the_reason(tmp_path):
     assert not far.feasible and far.duration_s > 40.0  # ... the time does not
     assert far.reason == f"mission time {far.duration_s:,.0f} s exceeds mission.time_limit_s = 40 s"
     c = r.exact
-    trip = path_energy(ctx.model, ctx.world, far.path_xy_m, c.speed_mps, c.duty_cycle,
-                       c.sensor_rate_Hz, c.accel_max_mps2)
+    trip = path_energy(ctx.model, ctx.world, far.path_xy_m, c.speed_mps, c.conditions,
+                       c.accel_max_mps2)
     assert far.duration_s == pytest.approx(trip.duration_s)
     # time already spent counts against the limit too
     later = prepare_reach(ctx, n_vertices=200, seed=2, time_used_s=40.0 - near.duration_s + 1.0)

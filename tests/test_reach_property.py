@@ -92,8 +92,8 @@ def test_feasible_goals_fit_match_exact_energy_and_few_are_missed(tmp_path_facto
                 continue
             trip = g.path_xy_m
             assert world.segments_free(trip[:-1], trip[1:]).all()
-            exact_J = path_energy(ctx.model, world, trip, exact.speed_mps, exact.duty_cycle,
-                                  exact.sensor_rate_Hz, exact.accel_max_mps2).total_J
+            exact_J = path_energy(ctx.model, world, trip, exact.speed_mps, exact.conditions,
+                                  exact.accel_max_mps2).total_J
             reported = g.energy_to_goal_J + g.energy_goal_to_home_J
             assert reported == pytest.approx(exact_J, rel=1e-9)
             assert used + exact_J + g.reserve_J <= reach.energy_available_J

@@ -107,7 +107,7 @@ def test_recorded_head_wind_shrinks_the_tour(mission):
     ctx, plan = mission
     session, decisions, _ = fly(ctx, plan, Truth(wind=Wind(mean_mps=5.0, from_deg=90.0)))
     assert decisions[-1].action == "replan"
-    wx, wy = session.world_now.wind_xy_mps
+    wx, wy = session.conditions_now.wind_xy_mps
     assert wx == pytest.approx(-5.0, abs=0.05) and abs(wy) < 0.05
     rest = rest_of_plan_m(session)
     new = session.replan()

@@ -54,7 +54,7 @@ def test_continue_means_home_is_reachable(missions, which, where, along, used):
     xy = plan.xy_m[i] + along * (plan.xy_m[i + 1] - plan.xy_m[i])
     energy = used * ctx.scenario.battery.usable_J
     standing_W = float(ctx.model.power_W(MotionState(speed_mps=0.0,
-                                                     sensor_rate_Hz=ctx.sensor_rate_Hz)))
+                                                     sensor_rate_Hz=ctx.conditions.sensor_rate_Hz)))
     session = MissionSession(ctx, plan, n_vertices=N_VERTICES, seed=0)
     t1 = max(energy / standing_W, 1e-3)
     d = session.feed(pd.DataFrame({"t_s": [0.0, t1], "power_W": standing_W,

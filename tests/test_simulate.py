@@ -115,7 +115,7 @@ def test_power_is_the_models_own_power_on_the_recorded_motion(ctx):
     """No truth effects: the recording replays exactly through EnergyModel.power_W."""
     sim = simulate(ctx, route(), seed=1)
     rec = recording_from_frame(sim.frame, "sim")
-    state = recording_state(rec, ctx.world, sensor_rate_Hz=ctx.sensor_rate_Hz)
+    state = recording_state(rec, ctx.world, sensor_rate_Hz=ctx.conditions.sensor_rate_Hz)
     np.testing.assert_allclose(ctx.model.power_W(state), sim.frame["power_W"], atol=1e-9)
     assert sim.energy_J == pytest.approx(sim.frame["power_W"].sum() * 0.1)
     assert set(sim.frame["surface"]) == {"grass", "default"}
@@ -140,7 +140,7 @@ def test_run_to_depletion_spends_the_truths_usable_energy_and_keeps_the_duty_cyc
     assert sim.energy_available_J == pytest.approx(0.5 * ctx.scenario.battery.usable_J)
     assert sim.energy_J == pytest.approx(sim.energy_available_J, abs=sim.frame["power_W"].max())
     assert sim.laps > 1
-    assert sim.moving_time_s / sim.duration_s == pytest.approx(ctx.duty_cycle, abs=0.01)
+    assert sim.moving_time_s / sim.duration_s == pytest.approx(ctx.conditions.duty_cycle, abs=0.01)
     assert sim.frame["soc"].iloc[-1] == pytest.approx(0.0, abs=1e-3)
 
 

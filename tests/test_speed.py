@@ -46,13 +46,13 @@ def test_mx_objective_equals_numpy_model(tmp_path):
     pieces = cut_path(ctx.world, [[2, 5], [20, 15], [38, 5], [20, 25], [2, 5]], 60)
     solver = SpeedSolver(ctx.model)
     prof = solver.solve(speed_problem(ctx, pieces))
-    wind_x, wind_y = ctx.world.wind_xy_mps
+    wind_x, wind_y = ctx.conditions.wind_xy_mps
     state = MotionState(speed_mps=prof.speed_mps, cos_t=pieces.cos_t, sin_t=pieces.sin_t,
                         dir_x=pieces.dir_x, dir_y=pieces.dir_y, crr=pieces.crr,
                         wind_x_mps=wind_x, wind_y_mps=wind_y)
     force = ctx.model.traction_force_N(state)
     assert (force < 0).sum() >= 5 and (force > 0).sum() >= 5  # the clip is active both ways
-    e = ctx.model.segment_energy(state, pieces.length_m, ctx.duty_cycle)
+    e = ctx.model.segment_energy(state, pieces.length_m, ctx.conditions.duty_cycle)
     numpy_J = float(np.sum(e.ancillary_J + e.traversal_J))
     assert prof.pieces_energy_J == pytest.approx(numpy_J, rel=1e-12)
     assert prof.objective == pytest.approx(numpy_J, rel=1e-6)
@@ -78,7 +78,7 @@ def test_time_limit_the_driven_profile_cannot_keep_is_refused(ctx):
     (from and to rest, stopping on its duty cycle) cannot, and the answer says so."""
     pieces = cut_path(ctx.world, STRAIGHT, 20)
     r = ctx.scenario.robot
-    fastest_s = float(np.sum(pieces.length_m)) / (r.v_max_mps * ctx.duty_cycle)
+    fastest_s = float(np.sum(pieces.length_m)) / (r.v_max_mps * ctx.conditions.duty_cycle)
     problem = speed_problem(ctx, pieces, time_limit_s=1.001 * fastest_s)
     with pytest.raises(PlanningError, match=r"mission time \d+ s exceeds mission.time_limit_s"):
         SpeedSolver(ctx.model).solve(problem, ctx.world)

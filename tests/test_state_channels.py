@@ -70,10 +70,10 @@ def test_predict_and_calibrate_see_the_same_wheels_up_rows(tmp_path):
                           "v_mps": np.full(n, 1.5), "accel_mps2": np.zeros(n),
                           "wheels_up": [1] * 20 + [0] * 20})
     rec = recording_from_frame(frame)
-    predicted = replay(rec, ctx.model, ctx.world, ctx.sensor_rate_Hz).predicted_W
+    predicted = replay(rec, ctx.model, ctx.world, ctx.conditions.sensor_rate_Hz).predicted_W
     fitted_state = recording_samples([rec], ctx).state
     np.testing.assert_allclose(predicted, ctx.model.power_W(fitted_state) * np.ones(n))
     idle = float(ctx.model.power_W(MotionState(speed_mps=0.0, crr=ctx.world.default_crr,
-                                               sensor_rate_Hz=ctx.sensor_rate_Hz)))
+                                               sensor_rate_Hz=ctx.conditions.sensor_rate_Hz)))
     np.testing.assert_allclose(predicted[:20], idle)
     assert predicted[-1] > idle

@@ -10,6 +10,7 @@ from planning_worlds import write_world
 
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.planning import orienteering
 from orange_plan.planning.plan import StartState
@@ -40,7 +41,7 @@ def test_bitstar_refinement_only_keeps_cheaper_legs(hilly):
 
     def energy(s, ids):
         return path_energy(ex.model, ex.world, s.roadmap_xy_m[ids], ex.speed_mps,
-                           ex.duty_cycle, accel_max_mps2=ex.accel_max_mps2).total_J
+                           ex.conditions, accel_max_mps2=ex.accel_max_mps2).total_J
 
     before = energy(setup, walk_vertices(setup, tour.nodes))
     refined, ids, n = refine_legs(setup, tour.nodes, seconds=0.5, max_legs=3, seed=1)
@@ -61,7 +62,7 @@ def test_sensing_speed_is_one_frame_per_footprint_radius(tmp_path):
     # planning_worlds: sensor_rate_Hz = 0 -> no cap below v_max
     assert sensing_speed_mps(ctx) == sc.robot.v_max_mps
     anc = replace(sc.ancillary, sensor_rate_Hz=1.2)
-    slow = replace(ctx, scenario=replace(sc, ancillary=anc))
+    slow = ctx.with_scenario(replace(sc, ancillary=anc))
     assert sensing_speed_mps(slow) == pytest.approx(1.0 * 1.2)  # r = 1 m, 1.2 Hz
 
 
@@ -69,7 +70,7 @@ def test_tour_speed_balances_energy_and_time(tmp_path):
     ctx = load_context(write_world(tmp_path, rated_energy_Wh=50.0))
     assert tour_speed_mps(ctx, StartState()) == pytest.approx(ctx.cruise_speed_mps)
     mission = replace(ctx.scenario.mission, time_limit_s=60.0)
-    timed = replace(ctx, scenario=replace(ctx.scenario, mission=mission))
+    timed = ctx.with_scenario(replace(ctx.scenario, mission=mission))
     # 50 Wh in 60 s: energy is no limit, so the fastest speed drives farthest.
     assert tour_speed_mps(timed, StartState()) == pytest.approx(ctx.scenario.robot.v_max_mps)
 
@@ -77,9 +78,10 @@ def test_tour_speed_balances_energy_and_time(tmp_path):
 def test_distance_context_is_flat_and_windless(hilly):
     flat = distance_context(hilly)
     assert flat.world.map.elevation is None and flat.world.map.surfaces == ()
-    assert flat.world.wind_xy_mps == (0.0, 0.0)
+    assert flat.conditions.wind_xy_mps == (0.0, 0.0)
     # Energy per metre is then the same in every direction and place.
-    e = [path_energy(flat.model, flat.world, np.array([[a, b], [a + 5, b]]), 1.0, 0.9).total_J
+    e = [path_energy(flat.model, flat.world, np.array([[a, b], [a + 5, b]]), 1.0,
+                     Conditions(0.9)).total_J
          for a, b in [(2, 2), (40, 30)]]
     assert e[0] == pytest.approx(e[1])
 
@@ -96,14 +98,14 @@ def test_min_energy_per_m_is_eq6_denominator_on_the_cheapest_ground(hilly):
 
 def test_time_limit_already_spent_is_refused(hilly):
     mission = replace(hilly.scenario.mission, time_limit_s=100.0)
-    timed = replace(hilly, scenario=replace(hilly.scenario, mission=mission))
+    timed = hilly.with_scenario(replace(hilly.scenario, mission=mission))
     with pytest.raises(InputError, match="already spent"):
         plan_tour(timed, StartState(time_s=150.0), n_vertices=100)
 
 
 def test_time_limit_is_kept(hilly):
     mission = replace(hilly.scenario.mission, time_limit_s=120.0)
-    timed = replace(hilly, scenario=replace(hilly.scenario, mission=mission))
+    timed = hilly.with_scenario(replace(hilly.scenario, mission=mission))
     plan = plan_tour(timed, n_vertices=250, bitstar_s=0)
     assert plan.t_s[-1] <= 120.0 * (1 + 1e-6)
     free = plan_tour(hilly, n_vertices=250, bitstar_s=0)
@@ -128,7 +130,7 @@ def test_warm_replan_reuses_the_roadmap_and_keeps_every_margin(hilly):
     assert hilly.world.segments_free(again.xy_m[:-1], again.xy_m[1:]).all()
     # Its energies are the heavier model's, as a cold plan's would be.
     sc = hilly.scenario
-    exact = path_energy(heavier, hilly.world, again.xy_m, again.speed_mps[:-1], sc.mission.duty_cycle,
-                        hilly.sensor_rate_Hz, accel_max_mps2=sc.robot.accel_max_mps2)
+    exact = path_energy(heavier, hilly.world, again.xy_m, again.speed_mps[:-1], hilly.conditions,
+                        accel_max_mps2=sc.robot.accel_max_mps2)
     assert again.energy_used_J[-1] - again.energy_used_J[0] == pytest.approx(exact.total_J,
                                                                              rel=1e-9)

@@ -65,8 +65,8 @@ def test_tour_returns_home_with_non_negative_margins(tmp_path_factory, spec, see
     assert np.all(np.diff(plan.t_s) >= 0)  # 0.1 s samples: a very short segment may take 0
     # The planned energy is that of the driven speed profile (ramps, duty-cycle stops): what
     # the simulator draws on the same path under the same model.
-    exact = path_energy(ctx.model, world, xy, plan.speed_mps[:-1], ctx.duty_cycle,
-                        ctx.sensor_rate_Hz, accel_max_mps2=ctx.scenario.robot.accel_max_mps2)
+    exact = path_energy(ctx.model, world, xy, plan.speed_mps[:-1], ctx.conditions,
+                        accel_max_mps2=ctx.scenario.robot.accel_max_mps2)
     assert plan.energy_used_J[-1] == pytest.approx(exact.total_J, rel=0.01)
     assert plan.energy_used_J == pytest.approx(exact.cumulative_J, rel=0.01, abs=1e-6)
     s = plan.summary

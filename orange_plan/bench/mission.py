@@ -251,10 +251,12 @@ def oracle_context(ctx, truth):
     sc = ctx.scenario
     battery = replace(sc.battery, rated_energy_Wh=sc.battery.rated_energy_Wh
                       * truth.capacity_factor)
-    world = ctx.world
-    if truth.wind is not None:
-        world = replace(world, wind_xy_mps=truth.wind.mean_xy_mps)
-    return replace(ctx, scenario=replace(sc, battery=battery), model=model, world=world)
+    oracle = replace(ctx.with_scenario(replace(sc, battery=battery)), model=model)
+    if truth.wind is None:
+        return oracle
+    wind = truth.wind.mean_xy_mps
+    return replace(oracle, world=replace(ctx.world, wind_xy_mps=wind),
+                   conditions=oracle.conditions.with_wind(wind))
 
 
 # --- flights ------------------------------------------------------------------------------

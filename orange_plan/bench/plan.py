@@ -265,7 +265,8 @@ def coverage_bound_m2(ctx) -> float:
     r = sc.mission.sensor_radius_m
     drive_m = sc.battery.usable_J / min_energy_per_m(ctx)
     if sc.mission.time_limit_s is not None:
-        drive_m = min(drive_m, sc.robot.v_max_mps * ctx.duty_cycle * sc.mission.time_limit_s)
+        drive_m = min(drive_m, sc.robot.v_max_mps * ctx.conditions.duty_cycle
+                      * sc.mission.time_limit_s)
     return float(min(ctx.world.map.free_space.area, 2 * r * drive_m + math.pi * r * r))
 
 
@@ -319,6 +320,7 @@ def at_confidence(planner: Planner, confidence: float | None) -> Planner:
     def planned(ctx, **kwargs):
         sc = ctx.scenario
         mission = replace(sc.mission, reserve=Reserve("confidence", float(confidence)))
+        # only the reserve changes: the conditions stay the context's
         return planner(replace(ctx, scenario=replace(sc, mission=mission)), **kwargs)
 
     return planned

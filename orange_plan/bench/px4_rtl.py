@@ -203,15 +203,15 @@ def _flat_energy_per_m(cost) -> float:
     from orange_plan.physics.range import flat_energy_per_m_J
 
     return float(flat_energy_per_m_J(cost.model, cost.speed_mps, cost.world.default_crr,
-                                     cost.sensor_rate_Hz, cost.duty_cycle))
+                                     cost.conditions.sensor_rate_Hz, cost.conditions.duty_cycle))
 
 
 def cruise_power_W(ctx, speed_mps: float) -> float:
     """Battery power at cruise on flat default ground, stops included (BAT_AVRG_CURRENT) [W]."""
     from orange_plan.physics.range import flat_state
 
-    state = flat_state(speed_mps, ctx.world.default_crr, ctx.sensor_rate_Hz)
-    e = ctx.model.segment_energy(state, 1.0, ctx.duty_cycle)
+    state = flat_state(speed_mps, ctx.world.default_crr, ctx.conditions.sensor_rate_Hz)
+    e = ctx.model.segment_energy(state, 1.0, ctx.conditions.duty_cycle)
     return float(e.total_J / e.mission_time_s)
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from orange_plan.errors import InputError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.model import EnergyModel, SegmentEnergy
 from orange_plan.physics.ops import wrap_pi
 from orange_plan.physics.profile import profile_energy
@@ -66,7 +67,7 @@ class Steps:
         """A per-segment (or scalar) value repeated onto every sub-step of its segment."""
         return np.broadcast_to(np.asarray(per_segment, float), (self.n_segments,))[self.segment]
 
-    def state(self, speed_mps, wind_xy_mps=(0.0, 0.0), sensor_rate_Hz=0.0) -> MotionState:
+    def state(self, speed_mps, conditions: Conditions) -> MotionState:
         """MotionState of every sub-step at per-segment (or scalar) speeds."""
         speed = self.per_step(speed_mps)
         return MotionState(
@@ -75,10 +76,10 @@ class Steps:
             sin_t=self.sin_t,
             dir_x=self.dir_x,
             dir_y=self.dir_y,
-            wind_x_mps=wind_xy_mps[0],
-            wind_y_mps=wind_xy_mps[1],
+            wind_x_mps=conditions.wind_xy_mps[0],
+            wind_y_mps=conditions.wind_xy_mps[1],
             crr=self.crr,
-            sensor_rate_Hz=sensor_rate_Hz,
+            sensor_rate_Hz=conditions.sensor_rate_Hz,
             surface_code=self.surface_code,
         )
 
@@ -155,8 +156,7 @@ def segments_energy(
     start_xy,
     end_xy,
     speed_mps,
-    duty_cycle: float,
-    sensor_rate_Hz: float = 0.0,
+    conditions: Conditions,
     steps: Steps | None = None,
 ) -> SegmentEnergy:
     """Energy of each straight segment (no turning), arrays of shape (n,) [J] and times [s]."""
@@ -164,8 +164,8 @@ def segments_energy(
     speed = np.broadcast_to(np.asarray(speed_mps, float), (steps.n_segments,))
     if np.any(speed <= 0):
         raise InputError("speed_mps must be > 0 on every segment")
-    state = steps.state(speed, world.wind_xy_mps, sensor_rate_Hz)
-    e = model.segment_energy(state, steps.length_m, duty_cycle)
+    state = steps.state(speed, conditions)
+    e = model.segment_energy(state, steps.length_m, conditions.duty_cycle)
     total = steps.per_segment
     return SegmentEnergy(
         ancillary_J=total(e.ancillary_J),
@@ -223,8 +223,7 @@ def path_energy(
     world,
     path_xy,
     speed_mps,
-    duty_cycle: float,
-    sensor_rate_Hz: float = 0.0,
+    conditions: Conditions,
     accel_max_mps2: float | None = None,
 ) -> PathEnergy:
     """Energy of a polyline at per-segment (or scalar) speeds, turning at interior vertices.
@@ -234,7 +233,7 @@ def path_energy(
     model : the energy model; world : the World
     path_xy : vertices (n, 2) [m]
     speed_mps : cruise speed per segment (n - 1,) or scalar [m/s]
-    duty_cycle : D [-]; sensor_rate_Hz : [Hz]
+    conditions : duty cycle, sensor rate and wind (``physics.conditions``)
     accel_max_mps2 : the robot's acceleration limit [m/s^2]. Given, the energy is that of the
         speed profile the robot drives (``physics.profile``: what the simulator draws on this
         path under this model); None gives the SPEC §7 reference figure, cruise speed
@@ -250,8 +249,7 @@ def path_energy(
     if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2:
         raise InputError(f"a path needs at least two (x, y) vertices, got shape {p.shape}")
     steps = subdivide(world, p[:-1], p[1:])
-    seg = segments_energy(model, world, None, None, speed_mps, duty_cycle, sensor_rate_Hz,
-                          steps=steps)
+    seg = segments_energy(model, world, None, None, speed_mps, conditions, steps=steps)
     turning = np.zeros(len(p) - 1)
     if len(p) > 2:
         turning[1:] = model.turning_energy_J(heading_changes_rad(p))
@@ -261,8 +259,7 @@ def path_energy(
         cumulative = np.r_[0.0, np.cumsum(seg.total_J)]
         time = np.r_[0.0, np.cumsum(seg.mission_time_s)]
         return PathEnergy(seg, cumulative, time)
-    drive = profile_energy(model, steps, steps.per_step(speed_mps), accel_max_mps2, duty_cycle,
-                           world.wind_xy_mps, sensor_rate_Hz)
+    drive = profile_energy(model, steps, steps.per_step(speed_mps), accel_max_mps2, conditions)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p, axis=0).T))]
     cumulative, time = drive.at_arclength(vertex_s)
     cumulative[-1], time[-1] = drive.total_J, drive.duration_s  # the final wait included
@@ -270,7 +267,7 @@ def path_energy(
 
 
 def segments_energy_jacobian(
-    model: EnergyModel, world, steps: Steps, speed_mps, duty_cycle: float, sensor_rate_Hz=0.0
+    model: EnergyModel, world, steps: Steps, speed_mps, conditions: Conditions
 ) -> np.ndarray:
     """d(energy of each segment)/d theta, shape (n_segments, n_coefficients) [J per unit].
 
@@ -278,6 +275,6 @@ def segments_energy_jacobian(
     path's energy: the basis of a reserve sized by confidence (DESIGN.md, SPEC §7).
     """
     speed = np.broadcast_to(np.asarray(speed_mps, float), (steps.n_segments,))
-    state = steps.state(speed, world.wind_xy_mps, sensor_rate_Hz)
-    jac = model.segment_energy_jacobian(state, steps.length_m, duty_cycle)
+    state = steps.state(speed, conditions)
+    jac = model.segment_energy_jacobian(state, steps.length_m, conditions.duty_cycle)
     return np.stack([steps.per_segment(jac[:, k]) for k in range(jac.shape[1])], axis=-1)

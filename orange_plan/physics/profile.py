@@ -25,6 +25,7 @@ from itertools import pairwise
 
 import numpy as np
 
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.ops import wrap_pi
 from orange_plan.physics.state import MotionState
 
@@ -231,8 +232,8 @@ class ProfileEnergy:
         return np.clip(i, 0, self.t_s.size - 1)
 
 
-def drive_path(steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,
-               wind_xy_mps=(0.0, 0.0), sensor_rate_Hz: float = 0.0, dt_s: float = SAMPLE_DT_S,
+def drive_path(steps, step_speed_mps, accel_max_mps2: float, conditions: Conditions,
+               dt_s: float = SAMPLE_DT_S,
                stop_every_s: float = STOP_EVERY_S) -> tuple[dict, MotionState]:
     """Drive sub-steps once with ``Driver``: the samples (``Driver.run``'s arrays) and their
     MotionState (mean wind, the map's crr, heading changes spread over ``TURN_SPREAD_S``).
@@ -241,13 +242,13 @@ def drive_path(steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,
     ----------
     steps : ``pathcost.Steps`` of the path, in order (at least one of positive length)
     step_speed_mps : cruise speed per sub-step [m/s]
-    accel_max_mps2 : acceleration limit [m/s^2]; duty_cycle : D [-]
-    wind_xy_mps : mean wind [m/s]; sensor_rate_Hz : [Hz]
+    accel_max_mps2 : acceleration limit [m/s^2]
+    conditions : duty cycle, sensor rate and mean wind (``physics.conditions``)
     dt_s : time step [s]; stop_every_s : moving time between duty-cycle stops [s]
     """
     edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
-    driver = Driver(edges, step_speed_mps, steps.cos_t, accel_max_mps2, dt_s, duty_cycle,
-                    stop_every_s)
+    driver = Driver(edges, step_speed_mps, steps.cos_t, accel_max_mps2, dt_s,
+                    conditions.duty_cycle, stop_every_s)
     chunks = []
     while not driver.finished:
         chunks.append(driver.run(100_000))
@@ -255,11 +256,11 @@ def drive_path(steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,
     heading = step_headings_rad(steps)[kin["step"]]
     yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0), max(1, round(TURN_SPREAD_S / dt_s)),
                              dt_s)
-    return kin, drive_state(steps, kin, yaw, wind_xy_mps, steps.crr[kin["step"]], sensor_rate_Hz)
+    return kin, drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[kin["step"]],
+                            conditions.sensor_rate_Hz)
 
 
-def profile_energy(model, steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,
-                   wind_xy_mps=(0.0, 0.0), sensor_rate_Hz: float = 0.0,
+def profile_energy(model, steps, step_speed_mps, accel_max_mps2: float, conditions: Conditions,
                    dt_s: float = SAMPLE_DT_S, stop_every_s: float = STOP_EVERY_S) -> ProfileEnergy:
     """Energy of the profile ``drive_path`` drives (parameters as there).
 
@@ -269,19 +270,18 @@ def profile_energy(model, steps, step_speed_mps, accel_max_mps2: float, duty_cyc
     regen and the rate terms all apply): the energy the simulator draws on the same path with
     no truth-only effects.
     """
-    kin, state = drive_path(steps, step_speed_mps, accel_max_mps2, duty_cycle, wind_xy_mps,
-                            sensor_rate_Hz, dt_s, stop_every_s)
+    kin, state = drive_path(steps, step_speed_mps, accel_max_mps2, conditions, dt_s,
+                            stop_every_s)
     power = np.broadcast_to(np.asarray(model.power_W(state), float), kin["t"].shape)
     return ProfileEnergy(kin["t"], kin["s"], np.cumsum(power) * dt_s, dt_s)
 
 
-def profile_gradient(model, steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,
-                     wind_xy_mps=(0.0, 0.0), sensor_rate_Hz: float = 0.0,
-                     dt_s: float = SAMPLE_DT_S, stop_every_s: float = STOP_EVERY_S) -> np.ndarray:
+def profile_gradient(model, steps, step_speed_mps, accel_max_mps2: float,
+                     conditions: Conditions, dt_s: float = SAMPLE_DT_S,
+                     stop_every_s: float = STOP_EVERY_S) -> np.ndarray:
     """d(profile energy)/d theta, shape (k,): ``sum_k dP/dtheta(state_k) dt`` (reserve sizing;
     ``gradient @ theta`` is the profile energy for models without regen)."""
-    _, state = drive_path(steps, step_speed_mps, accel_max_mps2, duty_cycle, wind_xy_mps,
-                          sensor_rate_Hz, dt_s, stop_every_s)
+    _, state = drive_path(steps, step_speed_mps, accel_max_mps2, conditions, dt_s, stop_every_s)
     return model.power_jacobian(state).sum(axis=0) * dt_s
 
 
@@ -457,8 +457,8 @@ def _yaw_rate(steps, kin: dict, dt_s: float) -> np.ndarray:
     return yaw
 
 
-def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, duty_cycle: float,
-                wind_xy_mps=(0.0, 0.0), sensor_rate_Hz: float = 0.0, dt_s: float = SAMPLE_DT_S,
+def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, conditions: Conditions,
+                dt_s: float = SAMPLE_DT_S,
                 stop_every_s: float = STOP_EVERY_S) -> list[tuple[dict, MotionState]]:
     """``drive_path`` of many independent paths at once: for each, the same samples and
     MotionState as ``drive_path`` gives it (parameters as there, ``steps_list`` and
@@ -471,15 +471,14 @@ def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, duty_cycle: 
     if not len(steps_list) and not len(step_speed_list):
         return []
     kins = _split_kinematics(_path_kinematics(steps_list, step_speed_list, accel_max_mps2,
-                                              duty_cycle, dt_s, stop_every_s))
-    return [(kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), wind_xy_mps,
-                              steps.crr[kin["step"]], sensor_rate_Hz))
+                                              conditions.duty_cycle, dt_s, stop_every_s))
+    return [(kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), conditions.wind_xy_mps,
+                              steps.crr[kin["step"]], conditions.sensor_rate_Hz))
             for steps, kin in zip(steps_list, kins)]
 
 
 def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max_mps2: float,
-                                   duty_cycle: float, wind_xy_mps=(0.0, 0.0),
-                                   sensor_rate_Hz: float = 0.0, dt_s: float = SAMPLE_DT_S,
+                                   conditions: Conditions, dt_s: float = SAMPLE_DT_S,
                                    stop_every_s: float = STOP_EVERY_S
                                    ) -> tuple[np.ndarray, np.ndarray]:
     """Profile energy [J], shape (n,), and its gradient d/d theta, shape (n, k), of many paths:
@@ -491,7 +490,7 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     if n == 0 and not len(step_speed_list):
         return np.zeros(0), np.zeros((0, k))
     t_all, _, v_rec, accel, j_rec, n_samples = _path_kinematics(
-        steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s, stop_every_s)
+        steps_list, step_speed_list, accel_max_mps2, conditions.duty_cycle, dt_s, stop_every_s)
     valid = np.arange(t_all.size) < n_samples[:, None]  # path-major, as the records
     bounds = np.r_[0, np.cumsum(n_samples)]
     step_off = np.r_[0, np.cumsum([st.horiz_m.size for st in steps_list])[:-1]]
@@ -504,13 +503,13 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     k_spread = max(1, round(TURN_SPREAD_S / dt_s))
     yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
                                           dt_s)[0] for lo, hi in pairwise(bounds)])
-    wind = np.broadcast_to(np.asarray(wind_xy_mps, float), (j.size, 2))
+    wind = np.broadcast_to(np.asarray(conditions.wind_xy_mps, float), (j.size, 2))
     state = MotionState(
         speed_mps=v_rec[valid], cos_t=cat("cos_t")[j],
         sin_t=cat("sin_t")[j], dir_x=cat("dir_x")[j], dir_y=cat("dir_y")[j],
         wind_x_mps=wind[:, 0], wind_y_mps=wind[:, 1], crr=cat("crr")[j],
         accel_mps2=accel[valid], yaw_rate_radps=yaw,
-        sensor_rate_Hz=np.full(j.size, float(sensor_rate_Hz)),
+        sensor_rate_Hz=np.full(j.size, conditions.sensor_rate_Hz),
         surface_code=np.concatenate([st.surface_code for st in steps_list])[j])
     power = np.broadcast_to(np.asarray(model.power_W(state), float), j.shape)
     jac = np.broadcast_to(np.asarray(model.power_jacobian(state), float), (j.size, k))

@@ -9,6 +9,7 @@ import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.mission import check_time_limit
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
 from orange_plan.physics.state import MotionState
@@ -230,7 +231,7 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None,
     paths = radial_probe_paths(world) if paths is None else paths
     if not paths:
         raise InputError("no a priori path: home has no free straight line out")
-    duty, rate = scenario.mission.duty_cycle, scenario.ancillary.sensor_rate_Hz
+    conditions = Conditions.of(scenario)
     starts = np.concatenate([p[:-1] for p in paths])
     ends = np.concatenate([p[1:] for p in paths])
     steps = subdivide(world, starts, ends)  # terrain sampled once, re-costed per speed
@@ -239,7 +240,7 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None,
     lengths = float(np.sum(np.hypot(*(ends - starts).T)))
 
     def cost_per_m(v):
-        e = segments_energy(model, world, None, None, v, duty, rate, steps=steps)
+        e = segments_energy(model, world, None, None, v, conditions, steps=steps)
         return (float(np.sum(e.ancillary_J + e.traversal_J)) + turning_J) / lengths
 
     v = best_speed(cost_per_m, scenario.robot.v_min_mps, scenario.robot.v_max_mps)
@@ -248,5 +249,6 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None,
         raise InputError(f"the a-priori energy per metre is {cost:.3g} J/m (not positive): "
                          "the range is unbounded; check the ancillary power and regen")
     d = scenario.battery.usable_J / cost
-    result = RangeResult(d, v, cost, d / (v * duty), "generalised offline (Eq. 11)")
+    result = RangeResult(d, v, cost, d / (v * conditions.duty_cycle),
+                         "generalised offline (Eq. 11)")
     return within_time_limit(result, cost_per_m, scenario, time_limit_s)

@@ -275,8 +275,8 @@ def cumulative_energy_time(ctx, cost, xy) -> tuple[np.ndarray, np.ndarray]:
     xy = np.asarray(xy, float)
     a, b = xy[:-1], xy[1:]
     steps = subdivide(ctx.world, a, b, cost.step_m, terrain=cost.terrain)
-    seg = segments_energy(ctx.model, ctx.world, None, None, cost.speed_mps, ctx.duty_cycle,
-                          ctx.sensor_rate_Hz, steps=steps)
+    seg = segments_energy(ctx.model, ctx.world, None, None, cost.speed_mps, ctx.conditions,
+                          steps=steps)
     turn = np.zeros(len(a))
     if len(xy) > 2:
         turn[1:] = ctx.model.turning_energy_J(heading_changes_rad(xy))
@@ -314,7 +314,7 @@ def _covered_before_return(ctx, cost, xy, free, budget_J: float,
     over = energy + e_per_m_J * home_m >= budget_J
     limit = ctx.scenario.mission.time_limit_s
     if limit is not None:
-        over |= t + home_m / (cost.speed_mps * ctx.duty_cycle) >= limit
+        over |= t + home_m / (cost.speed_mps * ctx.conditions.duty_cycle) >= limit
     stop = int(np.argmax(over)) if over.any() else len(xy) - 1
     r = ctx.scenario.mission.sensor_radius_m
     prefix = xy[: max(stop, 1) + 1]

@@ -83,7 +83,7 @@ def evaluate_path(cost: EdgeCostContext, xy, method: str) -> PlannedPath:
     """Exact energy of a polyline at the cost's cruise speed (``path_energy``; the driven
     speed profile when the cost carries the robot's acceleration limit)."""
     p = clean_polyline(xy)
-    e = path_energy(cost.model, cost.world, p, cost.speed_mps, cost.duty_cycle, cost.sensor_rate_Hz,
+    e = path_energy(cost.model, cost.world, p, cost.speed_mps, cost.conditions,
                     cost.accel_max_mps2)
     length = float(np.sum(np.hypot(*np.diff(p, axis=0).T)))
     return PlannedPath(p, e.total_J, length, e.duration_s, float(cost.speed_mps), method)
@@ -102,16 +102,17 @@ def path_gradient(cost: EdgeCostContext, xy) -> np.ndarray:
     if cost.accel_max_mps2 is not None and np.any(steps.horiz_m > 0):
         # the energy path_energy reports for this cost is the driven profile's
         return profile_gradient(model, steps, steps.per_step(cost.speed_mps), cost.accel_max_mps2,
-                                cost.duty_cycle, cost.world.wind_xy_mps, cost.sensor_rate_Hz)
-    jac = segments_energy_jacobian(model, cost.world, steps, cost.speed_mps, cost.duty_cycle,
-                                   cost.sensor_rate_Hz).sum(axis=0)
+                                cost.conditions)
+    jac = segments_energy_jacobian(model, cost.world, steps, cost.speed_mps,
+                                   cost.conditions).sum(axis=0)
     if len(p) > 2:
         # Zero length: only the rate (turning) columns are non-zero.
         from orange_plan.physics.state import MotionState
 
         turns = heading_changes_rad(p)
         still = MotionState(speed_mps=np.ones_like(turns))
-        jac = jac + model.segment_energy_jacobian(still, np.zeros_like(turns), cost.duty_cycle,
+        jac = jac + model.segment_energy_jacobian(still, np.zeros_like(turns),
+                                                  cost.conditions.duty_cycle,
                                                   turns).sum(axis=0)
     return jac
 
@@ -154,8 +155,8 @@ def _shortest(roadmap: Roadmap, s: int, g: int) -> list[int]:
 def segment_energy_J(cost: EdgeCostContext, x0: float, y0: float, x1: float, y1: float) -> float:
     """Energy of one straight segment with the cost's terrain and sub-step (scalar) [J]."""
     steps = subdivide(cost.world, [[x0, y0]], [[x1, y1]], cost.step_m, terrain=cost.terrain)
-    e = segments_energy(cost.model, cost.world, None, None, cost.speed_mps, cost.duty_cycle,
-                        cost.sensor_rate_Hz, steps=steps)
+    e = segments_energy(cost.model, cost.world, None, None, cost.speed_mps, cost.conditions,
+                        steps=steps)
     return float(e.total_J[0])
 
 

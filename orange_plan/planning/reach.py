@@ -138,7 +138,7 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
     dem = ctx.world.map.elevation
     step = max(MAX_STEP_M, dem.cell_m if dem is not None else terrain.cell_m)
     common = (ctx.model, ctx.world)
-    rest = (float(speed_mps), ctx.duty_cycle, ctx.sensor_rate_Hz)
+    rest = (float(speed_mps), ctx.conditions)
     # Energy gradients (for variances) cost time; only a confidence reserve needs them,
     # unless the caller asks (the tour planner reports a return probability for any reserve).
     gradient = sc.mission.reserve.kind == "confidence" if with_gradient is None else with_gradient
@@ -373,7 +373,7 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     back = np.vstack([goal, rm.xy_m[reach.to_home.path(b)]])
     trip = clean_polyline(dedupe(np.vstack([out, back])))
     c = reach.exact
-    energy = path_energy(c.model, c.world, trip, c.speed_mps, c.duty_cycle, c.sensor_rate_Hz,
+    energy = path_energy(c.model, c.world, trip, c.speed_mps, c.conditions,
                          c.accel_max_mps2)
     cumulative = energy.cumulative_J
     # Turning at the goal is charged to the way back (path_energy charges a vertex's turn to

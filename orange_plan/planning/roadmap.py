@@ -19,6 +19,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from orange_plan.errors import InputError, PlanningError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import (
     Steps,
     segments_energy,
@@ -73,14 +74,13 @@ class Roadmap:
 
 @dataclass(frozen=True)
 class EdgeCostContext:
-    """What edge weights depend on besides geometry (model, world, speed, mission)."""
+    """What edge weights depend on besides geometry (model, world, speed, conditions)."""
 
     model: object
     world: object
     terrain: object  # TerrainRasters (fast crr look-ups) or the World itself (exact)
     speed_mps: float
-    duty_cycle: float
-    sensor_rate_Hz: float
+    conditions: Conditions  # duty cycle, sensor rate, wind: the Context's
     step_m: float | None = None  # integration sub-step; None: the SPEC §7 sub-step
     with_gradient: bool = True  # also compute d energy / d theta (confidence reserves)
     # the robot's acceleration limit: exact path energies follow the driven speed profile
@@ -104,7 +104,7 @@ class EdgeCostContext:
         out_e, out_j = [], []
         for steps in (fwd, reverse_steps(fwd)):
             args = (self.model, self.world)
-            rest = (self.speed_mps, self.duty_cycle, self.sensor_rate_Hz)
+            rest = (self.speed_mps, self.conditions)
             out_e.append(segments_energy(*args, None, None, *rest, steps=steps).total_J)
             if self.with_gradient:
                 out_j.append(segments_energy_jacobian(*args, steps, *rest))

@@ -218,17 +218,17 @@ class MissionSession:
         return self._per_batch("online_model", build)
 
     @property
-    def world_now(self):
-        """The current world with the wind measured over the window (the scenario's wind
-        where the samples carry none)."""
+    def conditions_now(self):
+        """The context's conditions with the wind measured over the window (the scenario's
+        wind where the samples carry none)."""
         def build():
             duration = sum(b[0] for b in self._window)
             if duration <= 0:
-                return self.ctx.world
+                return self.ctx.conditions
             wx = sum(b[6] for b in self._window)
             wy = sum(b[7] for b in self._window)
-            return replace(self.ctx.world, wind_xy_mps=(wx / duration, wy / duration))
-        return self._per_batch("world_now", build)
+            return self.ctx.conditions.with_wind((wx / duration, wy / duration))
+        return self._per_batch("conditions_now", build)
 
     def _estimate(self):
         """The online estimator's figures after the last batch."""
@@ -250,7 +250,7 @@ class MissionSession:
         and world."""
         self.plan = plan
         self._plan_model = self.online_model
-        self._plan_world = self.world_now
+        self._plan_conditions = self.conditions_now
         self._progress = 0
         for b in getattr(self, "_window", ()):
             b[5] = None  # a new plan model: predict again
@@ -326,7 +326,7 @@ class MissionSession:
         if len(history) >= 2:
             context = history.tail(len(frame) + CONTEXT_ROWS)
             rec = recording_from_frame(context, "samples")
-            state = recording_state(rec, self.ctx.world, self.ctx.sensor_rate_Hz)
+            state = recording_state(rec, self.ctx.world, self.ctx.conditions.sensor_rate_Hz)
             state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
             state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
             power = frame["power_W"].to_numpy(float)
@@ -428,8 +428,8 @@ class MissionSession:
         if dist <= 0:
             return None
         measured = sum(b[2] for b in self._window) / dist
-        # the plan's prediction: its model in its world (its wind), on the motion driven
-        wx, wy = self._plan_world.wind_xy_mps
+        # the plan's prediction: its model under its conditions (its wind), on the motion driven
+        wx, wy = self._plan_conditions.wind_xy_mps
         for b in self._window:  # each batch once per plan (a window holds up to ~150)
             if b[5] is None:
                 b[5] = float(np.sum(np.asarray(self._plan_model.power_W(
@@ -458,7 +458,8 @@ class MissionSession:
 
         reach, tree = self._reach()
         model = self.online_model
-        exact = replace(reach.exact, model=model, world=self.world_now)
+        exact = replace(reach.exact, model=model, world=self.ctx.world,
+                        conditions=self.conditions_now)
         for xy in self._free_positions():
             back = way_home(replace(reach, exact=exact), xy, tree)
             if back is None:
@@ -515,9 +516,11 @@ class MissionSession:
         rest = rest[keep]
         if len(rest) < 2:
             return avail - used - float(plan.reserve_J[-1])
-        args = (rest, speeds, self.ctx.duty_cycle, self.ctx.sensor_rate_Hz)
-        online = path_energy(self.online_model, self.world_now, *args).cumulative_J
-        planned = path_energy(self._plan_model, self._plan_world, *args).cumulative_J
+        world = self.ctx.world
+        online = path_energy(self.online_model, world, rest, speeds,
+                             self.conditions_now).cumulative_J
+        planned = path_energy(self._plan_model, world, rest, speeds,
+                              self._plan_conditions).cumulative_J
         ratio = online[-1] / planned[-1] if planned[-1] > 0 else 1.0
         idx = np.r_[k, k + 1 + np.flatnonzero(keep[1:])]
         to_home = plan.energy_to_home_J[idx] * ratio
@@ -554,7 +557,8 @@ class MissionSession:
         if getattr(self, "_planner", None) is None:
             self._planner = TourPlanner(self.ctx, n_vertices=self.n_vertices, seed=self.seed,
                                         **self.planner_kwargs)
-        return self._planner.plan(start, model=self.online_model, world=self.world_now)
+        return self._planner.plan(start, model=self.online_model, world=self.ctx.world,
+                                  conditions=self.conditions_now)
 
     # --- map updates ---------------------------------------------------------------------
     def update_map(self, obstacles=(), no_go=(), replan: bool = True) -> Decision:

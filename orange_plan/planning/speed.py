@@ -26,6 +26,7 @@ import numpy as np
 
 from orange_plan.errors import InputError, PlanningError
 from orange_plan.mission import check_time_limit
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import Steps, path_energy, subdivide
 from orange_plan.physics.state import MotionState
 from orange_plan.planning.paths import dedupe
@@ -93,7 +94,7 @@ class SpeedProblem:
     pieces : the path's pieces
     v_min_mps, v_max_mps : speed bounds [m/s]
     accel_max_mps2 : acceleration / deceleration limit [m/s^2]
-    duty_cycle : D [-]; sensor_rate_Hz : [Hz]; wind_xy_mps : [m/s]
+    conditions : duty cycle, sensor rate and wind (``physics.conditions``)
     objective : "energy" or "time"
     time_limit_s : mission-time limit for "energy" (None: none) [s]
     energy_budget_J : energy limit for "time" [J]
@@ -105,9 +106,7 @@ class SpeedProblem:
     v_min_mps: float
     v_max_mps: float
     accel_max_mps2: float
-    duty_cycle: float
-    sensor_rate_Hz: float = 0.0
-    wind_xy_mps: tuple[float, float] = (0.0, 0.0)
+    conditions: Conditions
     objective: str = "energy"
     time_limit_s: float | None = None
     energy_budget_J: float | None = None
@@ -123,7 +122,8 @@ class SpeedProblem:
             raise InputError(f"accel_max_mps2 = {self.accel_max_mps2} must be > 0")
         if self.objective == "time" and self.energy_budget_J is None:
             raise InputError("objective 'time' needs an energy_budget_J")
-        fastest = float(np.sum(self.pieces.length_m) / (self.v_max_mps * self.duty_cycle))
+        fastest = float(np.sum(self.pieces.length_m)
+                        / (self.v_max_mps * self.conditions.duty_cycle))
         if self.time_limit_s is not None and self.time_limit_s < fastest:
             raise InputError(f"time_limit_s = {self.time_limit_s:g} s is shorter than the path "
                              f"takes at v_max ({fastest:.6g} s)")
@@ -176,8 +176,7 @@ class SpeedSolver:
     def _solver(self, problem: SpeedProblem):
         import casadi as ca
 
-        key = (problem.pieces.n, problem.objective, problem.duty_cycle, problem.sensor_rate_Hz,
-               problem.wind_xy_mps, problem.accel_max_mps2)
+        key = (problem.pieces.n, problem.objective, problem.conditions, problem.accel_max_mps2)
         if key in self._solvers:
             return self._solvers[key]
         n = problem.pieces.n
@@ -185,7 +184,7 @@ class SpeedSolver:
         par = {f: ca.MX.sym(f, n) for f in FIELDS}
         limit = ca.MX.sym("limit")
         state = self._state(problem, v, par)
-        seg = self.model.segment_energy(state, par["length_m"], problem.duty_cycle)
+        seg = self.model.segment_energy(state, par["length_m"], problem.conditions.duty_cycle)
         # Transcription of the no-recovery clip: max(0, F) is not differentiable and IPOPT
         # oscillates across its kink on descents; the epigraph s >= F, s >= 0 is exact at the
         # optimum (minimising pushes s down to max(0, F)), and the model charges s in its place.
@@ -211,10 +210,11 @@ class SpeedSolver:
 
     def _state(self, problem: SpeedProblem, speed, par) -> MotionState:
         """Motion state of the pieces (numpy or MX ``speed`` and ``par``)."""
+        wind_x, wind_y = problem.conditions.wind_xy_mps
         return MotionState(speed_mps=speed, cos_t=par["cos_t"], sin_t=par["sin_t"],
                            dir_x=par["dir_x"], dir_y=par["dir_y"],
-                           wind_x_mps=problem.wind_xy_mps[0], wind_y_mps=problem.wind_xy_mps[1],
-                           crr=par["crr"], sensor_rate_Hz=problem.sensor_rate_Hz,
+                           wind_x_mps=wind_x, wind_y_mps=wind_y,
+                           crr=par["crr"], sensor_rate_Hz=problem.conditions.sensor_rate_Hz,
                            surface_code=par["surface_code"])
 
     def solve(self, problem: SpeedProblem, model_world=None, warm_start=None) -> SpeedProfile:
@@ -245,7 +245,8 @@ class SpeedSolver:
         if model_world is None or limit is None:
             return profile
         pc = problem.pieces
-        fastest_s = float(np.sum(pc.length_m) / (problem.v_max_mps * problem.duty_cycle))
+        fastest_s = float(np.sum(pc.length_m)
+                          / (problem.v_max_mps * problem.conditions.duty_cycle))
         for _ in range(TIGHTEN_ROUNDS):
             exact, pieces = ((profile.duration_s, profile.pieces_duration_s) if time_bound
                              else (profile.energy_J, profile.pieces_energy_J))
@@ -291,13 +292,13 @@ class SpeedSolver:
         speed = np.asarray(r["x"]).ravel()[:n]
         self._last[pc.n] = speed
         e = self.model.segment_energy(self._state(problem, speed, pc.values()), pc.length_m,
-                                      problem.duty_cycle)
+                                      problem.conditions.duty_cycle)
         pieces_J = float(np.sum(e.ancillary_J + e.traversal_J))
         pieces_s = float(np.sum(e.mission_time_s))
         energy, duration = pieces_J, pieces_s
         if model_world is not None:
-            exact = path_energy(self.model, model_world, pc.xy_m, speed, problem.duty_cycle,
-                                problem.sensor_rate_Hz, problem.accel_max_mps2)
+            exact = path_energy(self.model, model_world, pc.xy_m, speed, problem.conditions,
+                                problem.accel_max_mps2)
             energy, duration = exact.total_J, exact.duration_s
         return SpeedProfile(pc.xy_m, speed, energy, duration, int(stats["iter_count"]), seconds,
                             pieces_J, pieces_s, float(r["f"]))
@@ -319,6 +320,5 @@ def speed_problem(ctx, pieces: PathPieces, objective: str = "energy",
     accel = getattr(r, "accel_max_mps2", None) or 0.5
     if time_limit_s is None and objective == "energy":
         time_limit_s = ctx.scenario.mission.time_limit_s
-    return SpeedProblem(pieces, r.v_min_mps, r.v_max_mps, accel, ctx.duty_cycle,
-                        ctx.sensor_rate_Hz, tuple(ctx.world.wind_xy_mps), objective,
+    return SpeedProblem(pieces, r.v_min_mps, r.v_max_mps, accel, ctx.conditions, objective,
                         time_limit_s, energy_budget_J)

@@ -223,13 +223,15 @@ class TourPlanner:
         self.search = {"seed": seed, **search}
         self.setup: TourSetup | None = None
 
-    def plan(self, start: StartState | None = None, model=None, world=None,
+    def plan(self, start: StartState | None = None, model=None, world=None, conditions=None,
              progress=None) -> Plan:
-        """A tour from ``start`` with ``model`` and ``world`` (default: the context's). A
-        world with another map (obstacles, no-go zones) than the setup's is planned cold."""
+        """A tour from ``start`` with ``model``, ``world`` and ``conditions`` (default: the
+        context's). A world with another map (obstacles, no-go zones) than the setup's is
+        planned cold."""
         t0 = _time.perf_counter()
         start = start or StartState()
-        ctx = replace(self.ctx, model=model or self.ctx.model, world=world or self.ctx.world)
+        ctx = replace(self.ctx, model=model or self.ctx.model, world=world or self.ctx.world,
+                      conditions=conditions or self.ctx.conditions)
         step = progress or (lambda text: None)
         if self.setup is not None and ctx.world.map is not self.setup.reach.exact.world.map:
             self.ctx, self.setup = ctx, None
@@ -250,7 +252,8 @@ def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
     """``setup`` re-aimed at a new start state and model (see ``TourPlanner``)."""
     reach = setup.reach
     old_model = reach.fast.model
-    fast, exact = (replace(c, model=ctx.model, world=ctx.world) for c in (reach.fast, reach.exact))
+    fast, exact = (replace(c, model=ctx.model, world=ctx.world, conditions=ctx.conditions)
+                   for c in (reach.fast, reach.exact))
     home = np.asarray(reach.home_xy_m)
     xy = home if start.xy_m is None else np.asarray(start.xy_m, float)
     if not bool(ctx.world.is_free(*xy)):
@@ -290,7 +293,7 @@ def _per_metre(model, ctx, speed_mps: float | None = None) -> float:
 
     speed = ctx.cruise_speed_mps if speed_mps is None else speed_mps
     return float(flat_energy_per_m_J(model, speed, ctx.world.default_crr,
-                                     ctx.sensor_rate_Hz, ctx.duty_cycle))
+                                     ctx.conditions.sensor_rate_Hz, ctx.conditions.duty_cycle))
 
 
 def distance_context(ctx):
@@ -303,7 +306,7 @@ def distance_context(ctx):
     world = ctx.world
     flat_map = replace(world.map, elevation=None, surfaces=())
     flat_world = replace(world, map=flat_map, wind_xy_mps=(0.0, 0.0))
-    return replace(ctx, world=flat_world)
+    return replace(ctx, world=flat_world, conditions=ctx.conditions.with_wind((0.0, 0.0)))
 
 
 def tour_speed_mps(ctx, start: StartState) -> float:
@@ -321,7 +324,7 @@ def tour_speed_mps(ctx, start: StartState) -> float:
     if limit is None:
         return v_opt
     return farthest_speed_mps(lambda v: _per_metre(ctx.model, ctx, v), _motion_energy_guess(
-        ctx, start), max(limit - start.time_s, 0.0), ctx.duty_cycle, v_opt,
+        ctx, start), max(limit - start.time_s, 0.0), ctx.conditions.duty_cycle, v_opt,
         ctx.scenario.robot.v_max_mps)
 
 
@@ -446,7 +449,7 @@ def drivable_m(ctx, reach: Reachability, time_left_s: float) -> float:
     left = reach.energy_available_J - reach.energy_used_J
     dist = left / min_energy_per_m(ctx)
     if np.isfinite(time_left_s):
-        dist = min(dist, ctx.scenario.robot.v_max_mps * ctx.duty_cycle * time_left_s)
+        dist = min(dist, ctx.scenario.robot.v_max_mps * ctx.conditions.duty_cycle * time_left_s)
     return float(dist)
 
 
@@ -456,7 +459,7 @@ def _within_time(ctx, reach: Reachability, cands: Candidates, time_left_s: float
     start, home = np.asarray(reach.start_xy_m), np.asarray(reach.home_xy_m)
     dist = (np.hypot(*(cands.start_xy_m - start).T) + cands.length_m
             + np.hypot(*(cands.end_xy_m - home).T))
-    fastest = ctx.scenario.robot.v_max_mps * ctx.duty_cycle
+    fastest = ctx.scenario.robot.v_max_mps * ctx.conditions.duty_cycle
     return dist / fastest <= time_left_s
 
 
@@ -494,7 +497,7 @@ def _legs(ctx, reach: Reachability, cands: Candidates, grid, covered) -> TourSet
     e_fwd, e_rev, _, _ = fast.costs(cands.start_xy_m, cands.end_xy_m)
     lane = cands.length_m > 0
     service_J = np.stack([np.where(lane, e_fwd, 0.0), np.where(lane, e_rev, 0.0)], axis=1)
-    moving = fast.speed_mps * ctx.duty_cycle
+    moving = fast.speed_mps * ctx.conditions.duty_cycle
     service_s = np.repeat((cands.length_m / moving)[:, None], 2, axis=1)
     rows = np.repeat(np.arange(n), [len(c) for c in cands.cells])
     cols = np.concatenate(cands.cells) if n else np.empty(0, int)
@@ -519,7 +522,7 @@ def _leg_times(ctx, speed_mps: float, xy: np.ndarray, pred: np.ndarray) -> np.nd
     for _ in range(int(np.ceil(np.log2(max(pred.shape[1], 2)))) + 1):
         length = length + length[rows, parent]
         parent = parent[rows, parent]
-    return length / (speed_mps * ctx.duty_cycle)
+    return length / (speed_mps * ctx.conditions.duty_cycle)
 
 
 def _probe(setup: TourSetup) -> tuple[float, float]:
@@ -536,8 +539,7 @@ def _probe(setup: TourSetup) -> tuple[float, float]:
     ids = walk_vertices(setup, [(k, 0)])
     xy = setup.roadmap_xy_m[ids]
     walk = drive(ex, xy, ex.speed_mps)
-    cruise = path_energy(ex.model, ex.world, xy, ex.speed_mps, ex.duty_cycle,
-                         ex.sensor_rate_Hz).duration_s
+    cruise = path_energy(ex.model, ex.world, xy, ex.speed_mps, ex.conditions).duration_s
     time_factor = max(1.0, float(walk.time_s[-1]) / cruise) if cruise > 0 else 1.0
     left = reach.energy_available_J - reach.energy_used_J
     if res.kind != "confidence":
@@ -731,13 +733,11 @@ def drive(cost, xy, speed_mps) -> Driven:
     model, world = cost.model, cost.world
     steps = subdivide(world, xy[:-1], xy[1:])
     if cost.accel_max_mps2 is None or not np.any(steps.horiz_m > 0):
-        energy = path_energy(model, world, xy, speed, cost.duty_cycle, cost.sensor_rate_Hz)
-        jac = segments_energy_jacobian(model, world, steps, speed, cost.duty_cycle,
-                                       cost.sensor_rate_Hz)
+        energy = path_energy(model, world, xy, speed, cost.conditions)
+        jac = segments_energy_jacobian(model, world, steps, speed, cost.conditions)
         grad = np.vstack([np.zeros((1, jac.shape[1])), np.cumsum(jac, axis=0)])
         return Driven(energy.cumulative_J, energy.cumulative_time_s, grad)
-    kin, state = drive_path(steps, steps.per_step(speed), cost.accel_max_mps2, cost.duty_cycle,
-                            world.wind_xy_mps, cost.sensor_rate_Hz)
+    kin, state = drive_path(steps, steps.per_step(speed), cost.accel_max_mps2, cost.conditions)
     dt = SAMPLE_DT_S
     power = np.broadcast_to(np.asarray(model.power_W(state), float), kin["t"].shape)
     drawn = ProfileEnergy(kin["t"], kin["s"], np.cumsum(power) * dt, dt)
@@ -790,7 +790,7 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
     steps = [subdivide(ex.world, xy[:-1], xy[1:]) for xy in paths]
     speeds = [st.per_step(np.full(st.n_segments, ex.speed_mps)) for st in steps]
     e, g = profile_energies_and_gradients(ex.model, steps, speeds, ex.accel_max_mps2,
-                                          ex.duty_cycle, ex.world.wind_xy_mps, ex.sensor_rate_Hz)
+                                          ex.conditions)
     energy[rows], grad[rows] = e, g
     return Driven(energy[back_to], np.zeros(len(ids)), grad[back_to])
 

@@ -126,7 +126,7 @@ def run_to_depletion(ctx: Context, route: Route, truth: dict, seed: int,
 def with_duty_cycle(ctx: Context, duty_cycle: float) -> Context:
     """The same robot and world flown at another duty cycle D."""
     mission = replace(ctx.scenario.mission, duty_cycle=duty_cycle)
-    return replace(ctx, scenario=replace(ctx.scenario, mission=mission))
+    return ctx.with_scenario(replace(ctx.scenario, mission=mission))
 
 
 def with_belief(ctx: Context, model=None, energy_factor: float = 1.0,
@@ -141,7 +141,7 @@ def with_belief(ctx: Context, model=None, energy_factor: float = 1.0,
     battery = replace(battery, rated_energy_Wh=battery.rated_energy_Wh * energy_factor,
                       cycles=battery.cycles + extra_cycles)
     scenario = replace(ctx.scenario, battery=battery)
-    return replace(ctx, scenario=scenario, model=ctx.model if model is None else model)
+    return replace(ctx.with_scenario(scenario), model=ctx.model if model is None else model)
 
 
 def course_range_m(ctx: Context, route: Route) -> float:
@@ -229,7 +229,7 @@ def online_ranges_m(belief: Context, sim: SimResult, fractions, batch_s: float =
     from orange_plan.telemetry.state import recording_state
 
     rec = recording_from_frame(sim.frame, f"{belief.scenario.name} run")
-    state = recording_state(rec, belief.world, belief.sensor_rate_Hz)
+    state = recording_state(rec, belief.world, belief.conditions.sensor_rate_Hz)
     est = OnlineEstimator(belief.model, belief.scenario.battery.usable_J, memory_s, memory_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s, batch_s,
                      until_s=max(fractions) * sim.duration_s)

@@ -92,21 +92,16 @@ class ScenarioLibrary:
         InputError
             Bad TOML, a map outside maps/, or anything ``load_context`` refuses.
         """
-        from orange_plan.context import Context
-        from orange_plan.model_builder import build_model
+        from orange_plan.context import context_of
         from orange_plan.scenario import scenario_from_dict
-        from orange_plan.world.terrain import World
 
         where = "scenario_toml" if source.inline else f"scenarios/{source.name}.toml"
         data = parse_toml(source.toml_text, where)
         data["map"] = str(self.map_path(data.get("map"), where))
         try:
-            scenario = scenario_from_dict(data, Path(where))
-            world = World.from_scenario(scenario)
-            model = build_model(scenario, world.map.surface_names)
+            return context_of(scenario_from_dict(data, Path(where)))
         except InputError as exc:
             raise type(exc)(self._relative(str(exc))) from None
-        return Context(scenario, world, model)
 
     def map_path(self, value, where: str) -> Path:
         """The map file a scenario's ``map`` value names, confined to maps/."""

@@ -187,14 +187,17 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     clipped = int(np.count_nonzero((route.speed_mps < v_lo) | (route.speed_mps > v_hi)))
     speed = np.clip(lap.speed_mps[steps.segment], v_lo, v_hi)
     driver = Driver(edges, speed, steps.cos_t, scenario.robot.accel_max_mps2, dt,
-                    ctx.duty_cycle, truth.stop_every_s, to_depletion)
+                    ctx.conditions.duty_cycle, truth.stop_every_s, to_depletion)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(lap.xy_m, axis=0).T))]
     rough_grid, rough = _roughness(rng, float(edges[-1]), truth.roughness_crr_std,
                                    truth.roughness_length_m)
 
     base = truth_model(ctx.model, truth)
     loaded = with_payload(base, scenario.robot.mass_kg, truth.payload_kg)
-    wind = truth.wind or Wind(scenario.environment.wind_speed_mps, scenario.environment.wind_from_deg)
+    # The context's conditions give the mean wind unless the truth has its own; gusts are
+    # truth-only (none without a truth wind).
+    wind = truth.wind or Wind()
+    mean_wind = wind.mean_xy_mps if truth.wind else ctx.conditions.wind_xy_mps
     gust = rng.standard_normal(2) * wind.gust_std_mps
     e_avail = scenario.battery.usable_J * truth.capacity_factor
     heading0 = step_heading[0]
@@ -210,12 +213,12 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
         s_lap = kin["s"] % edges[-1] if to_depletion else np.minimum(kin["s"], edges[-1])
         gusts = _ou(rng, j.size, dt, wind.gust_std_mps, wind.gust_tau_s, gust)
         gust = gusts[-1]
-        wind_xy = np.asarray(wind.mean_xy_mps) + gusts
+        wind_xy = np.asarray(mean_wind) + gusts
         heading = step_heading[j]
         yaw, carry = spread_yaw_rate(heading, heading0, carry, k_turn, dt)
         heading0 = heading[-1]
         crr = np.clip(steps.crr[j] + np.interp(s_lap, rough_grid, rough), 0.0, 1.0)
-        state = drive_state(steps, kin, yaw, wind_xy, crr, ctx.sensor_rate_Hz)
+        state = drive_state(steps, kin, yaw, wind_xy, crr, ctx.conditions.sensor_rate_Hz)
         carrying = kin["t"] >= truth.payload_from_s if truth.payload_kg else np.zeros(j.size, bool)
         power = base.power_W(state)
         if carrying.any():  # the loaded model only where the payload is on board

@@ -166,4 +166,4 @@ def check_positions_on_map(recording: Recording, world) -> None:
 
 def replay_context(recording: Recording, ctx) -> Replay:
     """``replay`` with a scenario Context's model, world and sensor rate."""
-    return replay(recording, ctx.model, ctx.world, ctx.sensor_rate_Hz)
+    return replay(recording, ctx.model, ctx.world, ctx.conditions.sensor_rate_Hz)
