@@ -8,6 +8,7 @@ import numpy as np
 import shapely
 
 from orange_plan.errors import InputError, ScenarioError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.world.geomap import Map, load_map
 
 
@@ -20,7 +21,9 @@ class World:
     map : the validated Map
     default_crr : rolling coefficient where no surface polygon applies [-]
     default_surface_name : its name (the map's default_surface, else "default")
-    wind_xy_mps : wind (or water current) vector (x east, y north) [m/s]
+    wind_xy_mps : the scenario's ``Conditions`` wind (or water current) (x east, y north)
+        [m/s], kept only as the fallback wind of recordings without wind columns
+        (``telemetry.state``); planning and simulation read ``Context.conditions``
     home_xy_m : start and return point [m]
     """
 
@@ -43,7 +46,8 @@ class World:
             raise ScenarioError(
                 f"{scenario.path}: no home: set mission.home_xy_m or add a 'home' Point to the map"
             )
-        world = cls(m, default_crr, default_name, scenario.environment.wind_xy_mps, tuple(home))
+        wind = Conditions.of(scenario).wind_xy_mps
+        world = cls(m, default_crr, default_name, wind, tuple(home))
         if not bool(world.is_free(*home)):
             raise ScenarioError(
                 f"{scenario.path}: home {tuple(home)} lies outside the boundary or inside an "
