@@ -63,6 +63,17 @@ class Steps:
     def _safe_length_m(self) -> np.ndarray:
         return np.where(self.length_m > 0, self.length_m, 1.0)
 
+    @classmethod
+    def concat(cls, steps_list) -> Steps:
+        """The sub-steps of several paths one after the other (segments numbered on)."""
+        offsets = np.r_[0, np.cumsum([st.n_segments for st in steps_list])[:-1]]
+        arrays = {name: np.concatenate([np.asarray(getattr(st, name)) for st in steps_list])
+                  for name in ("length_m", "horiz_m", "dz_m", "dir_x", "dir_y", "crr",
+                               "surface_code")}
+        segment = np.concatenate([st.segment + off for st, off in zip(steps_list, offsets)])
+        return cls(segment=segment, n_segments=int(sum(st.n_segments for st in steps_list)),
+                   **arrays)
+
     def per_step(self, per_segment) -> np.ndarray:
         """A per-segment (or scalar) value repeated onto every sub-step of its segment."""
         return np.broadcast_to(np.asarray(per_segment, float), (self.n_segments,))[self.segment]

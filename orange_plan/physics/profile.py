@@ -272,6 +272,21 @@ def profile_energy(model, steps, step_speed_mps, accel_max_mps2: float, conditio
     """
     kin, state = drive_path(steps, step_speed_mps, accel_max_mps2, conditions, dt_s,
                             stop_every_s)
+    return _drawn(model, kin, state, dt_s)
+
+
+def profile_energy_and_gradient(model, steps, step_speed_mps, accel_max_mps2: float,
+                                conditions: Conditions, dt_s: float = SAMPLE_DT_S,
+                                stop_every_s: float = STOP_EVERY_S):
+    """``profile_energy`` and the running sum of d(power)/d theta dt over the same samples,
+    shape (n, k), from one drive (a plan's per-vertex energies and reserve gradients)."""
+    kin, state = drive_path(steps, step_speed_mps, accel_max_mps2, conditions, dt_s,
+                            stop_every_s)
+    return _drawn(model, kin, state, dt_s), np.cumsum(model.power_jacobian(state), axis=0) * dt_s
+
+
+def _drawn(model, kin: dict, state: MotionState, dt_s: float) -> ProfileEnergy:
+    """Energy drawn along driven samples: the model's power, rectangle rule."""
     power = np.broadcast_to(np.asarray(model.power_W(state), float), kin["t"].shape)
     return ProfileEnergy(kin["t"], kin["s"], np.cumsum(power) * dt_s, dt_s)
 
@@ -495,22 +510,17 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     bounds = np.r_[0, np.cumsum(n_samples)]
     step_off = np.r_[0, np.cumsum([st.horiz_m.size for st in steps_list])[:-1]]
     j = j_rec[valid] + np.repeat(step_off, n_samples)  # into the concatenated sub-steps
+    # pathcost builds path energies on this module, so its Steps is imported here, not above
+    from orange_plan.physics.pathcost import Steps
 
-    def cat(name):
-        return np.concatenate([np.asarray(getattr(st, name), float) for st in steps_list])
-
-    heading = np.concatenate([step_headings_rad(st) for st in steps_list])[j]
+    steps = Steps.concat(steps_list)
+    heading = step_headings_rad(steps)[j]
     k_spread = max(1, round(TURN_SPREAD_S / dt_s))
     yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
                                           dt_s)[0] for lo, hi in pairwise(bounds)])
-    wind = np.broadcast_to(np.asarray(conditions.wind_xy_mps, float), (j.size, 2))
-    state = MotionState(
-        speed_mps=v_rec[valid], cos_t=cat("cos_t")[j],
-        sin_t=cat("sin_t")[j], dir_x=cat("dir_x")[j], dir_y=cat("dir_y")[j],
-        wind_x_mps=wind[:, 0], wind_y_mps=wind[:, 1], crr=cat("crr")[j],
-        accel_mps2=accel[valid], yaw_rate_radps=yaw,
-        sensor_rate_Hz=np.full(j.size, conditions.sensor_rate_Hz),
-        surface_code=np.concatenate([st.surface_code for st in steps_list])[j])
+    kin = {"step": j, "v": v_rec[valid], "accel": accel[valid]}
+    state = drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[j],
+                        conditions.sensor_rate_Hz)
     power = np.broadcast_to(np.asarray(model.power_W(state), float), j.shape)
     jac = np.broadcast_to(np.asarray(model.power_jacobian(state), float), (j.size, k))
     energy, gradient = np.empty(n), np.empty((n, k))

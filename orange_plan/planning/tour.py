@@ -726,7 +726,7 @@ def drive(cost, xy, speed_mps) -> Driven:
     """Energy, time and gradient of a polyline as ``path_energy`` / ``path_gradient`` give
     them (the driven speed profile when ``cost`` carries an acceleration limit), from one
     drive: both come from the same samples, so they cost one profile instead of two."""
-    from orange_plan.physics.profile import SAMPLE_DT_S, ProfileEnergy, drive_path
+    from orange_plan.physics.profile import profile_energy_and_gradient
 
     xy = np.asarray(xy, float)
     speed = np.broadcast_to(np.asarray(speed_mps, float), (len(xy) - 1,))
@@ -737,11 +737,8 @@ def drive(cost, xy, speed_mps) -> Driven:
         jac = segments_energy_jacobian(model, world, steps, speed, cost.conditions)
         grad = np.vstack([np.zeros((1, jac.shape[1])), np.cumsum(jac, axis=0)])
         return Driven(energy.cumulative_J, energy.cumulative_time_s, grad)
-    kin, state = drive_path(steps, steps.per_step(speed), cost.accel_max_mps2, cost.conditions)
-    dt = SAMPLE_DT_S
-    power = np.broadcast_to(np.asarray(model.power_W(state), float), kin["t"].shape)
-    drawn = ProfileEnergy(kin["t"], kin["s"], np.cumsum(power) * dt, dt)
-    cum_g = np.cumsum(model.power_jacobian(state), axis=0) * dt
+    drawn, cum_g = profile_energy_and_gradient(model, steps, steps.per_step(speed),
+                                               cost.accel_max_mps2, cost.conditions)
     vertex_s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
     energy, time = drawn.at_arclength(vertex_s)
     grad = drawn.drawn_before(cum_g, vertex_s)
