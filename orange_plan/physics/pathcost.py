@@ -65,14 +65,16 @@ class Steps:
 
     @classmethod
     def concat(cls, steps_list) -> Steps:
-        """The sub-steps of several paths one after the other (segments numbered on)."""
+        """The sub-steps of several paths one after the other (segments numbered on), as
+        plain Steps whatever their kind (``steps.concat(...)`` serves modules that cannot
+        import this one)."""
         offsets = np.r_[0, np.cumsum([st.n_segments for st in steps_list])[:-1]]
         arrays = {name: np.concatenate([np.asarray(getattr(st, name)) for st in steps_list])
                   for name in ("length_m", "horiz_m", "dz_m", "dir_x", "dir_y", "crr",
                                "surface_code")}
         segment = np.concatenate([st.segment + off for st, off in zip(steps_list, offsets)])
-        return cls(segment=segment, n_segments=int(sum(st.n_segments for st in steps_list)),
-                   **arrays)
+        return Steps(segment=segment, n_segments=int(sum(st.n_segments for st in steps_list)),
+                     **arrays)
 
     def per_step(self, per_segment) -> np.ndarray:
         """A per-segment (or scalar) value repeated onto every sub-step of its segment."""

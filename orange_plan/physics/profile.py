@@ -510,10 +510,7 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     bounds = np.r_[0, np.cumsum(n_samples)]
     step_off = np.r_[0, np.cumsum([st.horiz_m.size for st in steps_list])[:-1]]
     j = j_rec[valid] + np.repeat(step_off, n_samples)  # into the concatenated sub-steps
-    # pathcost builds path energies on this module, so its Steps is imported here, not above
-    from orange_plan.physics.pathcost import Steps
-
-    steps = Steps.concat(steps_list)
+    steps = steps_list[0].concat(steps_list)  # pathcost imports this module: no import back
     heading = step_headings_rad(steps)[j]
     k_spread = max(1, round(TURN_SPREAD_S / dt_s))
     yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
