@@ -69,6 +69,7 @@ from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
 from orange_plan.identify.soc import SocCapacity
 from orange_plan.physics.pathcost import path_energy
+from orange_plan.physics.state import MotionState
 from orange_plan.planning.coverage import footprint
 from orange_plan.planning.paths import distinct_vertices
 from orange_plan.planning.plan import Plan, StartState
@@ -127,6 +128,19 @@ class Decision:
         return d
 
 
+@dataclass
+class _Batch:
+    """One telemetry batch as the estimator's window keeps it."""
+
+    duration_s: float
+    distance_m: float
+    measured_J: float
+    state: MotionState
+    dt: np.ndarray
+    wind_dt_m: tuple[float, float]  # time integrals of the wind (the window's mean wind)
+    planned_J: float | None = None  # this motion's energy under the plan's model (lazily)
+
+
 @dataclass(frozen=True)
 class _Home:
     """The return home from the current position."""
@@ -173,7 +187,8 @@ class MissionSession:
         self._events: list[dict] = []
         self._soc = SocCapacity()
         self._history = pd.DataFrame()
-        self._window: deque = deque()  # (duration_s, distance_m, measured_J, state, dt) per batch
+        self._window: deque[_Batch] = deque()
+        self._batch_cache: dict = {}
         if plan is None:
             plan = self._plan(StartState())
         self._initial_plan = plan
@@ -222,11 +237,11 @@ class MissionSession:
         """The context's conditions with the wind measured over the window (the scenario's
         wind where the samples carry none)."""
         def build():
-            duration = sum(b[0] for b in self._window)
+            duration = sum(b.duration_s for b in self._window)
             if duration <= 0:
                 return self.ctx.conditions
-            wx = sum(b[6] for b in self._window)
-            wy = sum(b[7] for b in self._window)
+            wx = sum(b.wind_dt_m[0] for b in self._window)
+            wy = sum(b.wind_dt_m[1] for b in self._window)
             return self.ctx.conditions.with_wind((wx / duration, wy / duration))
         return self._per_batch("conditions_now", build)
 
@@ -237,13 +252,13 @@ class MissionSession:
     def _per_batch(self, name: str, build):
         """A figure that only changes when a batch arrives or the map changes, built once
         between those events (a decision reads each several times)."""
-        cache = self.__dict__.setdefault("_batch_cache", {})
+        cache = self._batch_cache
         if name not in cache:
             cache[name] = build()
         return cache[name]
 
     def _new_batch(self) -> None:
-        self.__dict__["_batch_cache"] = {}
+        self._batch_cache = {}
 
     def _adopt(self, plan: Plan) -> None:
         """Fly ``plan`` from now on; its figures were made with the current online model
@@ -252,8 +267,8 @@ class MissionSession:
         self._plan_model = self.online_model
         self._plan_conditions = self.conditions_now
         self._progress = 0
-        for b in getattr(self, "_window", ()):
-            b[5] = None  # a new plan model: predict again
+        for b in self._window:
+            b.planned_J = None  # a new plan model: predict again
         self._map_changed = False
         self._home_reach = None
 
@@ -350,13 +365,12 @@ class MissionSession:
     def _remember(self, duration_s, distance_m, measured_J, state, dt) -> None:
         """Keep the last ``window_s`` of batches: what was measured and the motion, so any
         model's prediction for the same motion can be made."""
-        # item 5: this batch's energy predicted by the plan's model (filled lazily);
-        # items 6, 7: the wind's time integrals [m] (the window's mean wind, summed once)
-        wind = [float(np.sum(np.asarray(w) * dt)) for w in (state.wind_x_mps, state.wind_y_mps)]
-        self._window.append([duration_s, distance_m, measured_J, state, dt, None, *wind])
-        span = sum(b[0] for b in self._window)
-        while len(self._window) > 1 and span - self._window[0][0] >= self.window_s:
-            span -= self._window.popleft()[0]
+        wind = tuple(float(np.sum(np.asarray(w) * dt))
+                     for w in (state.wind_x_mps, state.wind_y_mps))
+        self._window.append(_Batch(duration_s, distance_m, measured_J, state, dt, wind))
+        span = sum(b.duration_s for b in self._window)
+        while len(self._window) > 1 and span - self._window[0].duration_s >= self.window_s:
+            span -= self._window.popleft().duration_s
 
     def _tour_progress(self) -> int:
         """Index of the tour segment the robot is on: the first one, from the last progress
@@ -424,17 +438,17 @@ class MissionSession:
         [J/m], or None while the window is too short to have a spread."""
         if len(self._window) < 2 * WINDOW_PARTS:
             return None
-        dist = sum(b[1] for b in self._window)
+        dist = sum(b.distance_m for b in self._window)
         if dist <= 0:
             return None
-        measured = sum(b[2] for b in self._window) / dist
+        measured = sum(b.measured_J for b in self._window) / dist
         # the plan's prediction: its model under its conditions (its wind), on the motion driven
         wx, wy = self._plan_conditions.wind_xy_mps
         for b in self._window:  # each batch once per plan (a window holds up to ~150)
-            if b[5] is None:
-                b[5] = float(np.sum(np.asarray(self._plan_model.power_W(
-                    b[3].with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b[4]))
-        predicted = sum(b[5] for b in self._window) / dist
+            if b.planned_J is None:
+                b.planned_J = float(np.sum(np.asarray(self._plan_model.power_W(
+                    b.state.with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b.dt))
+        predicted = sum(b.planned_J for b in self._window) / dist
         sd = self._estimate().energy_per_m_sd_J
         if not (math.isfinite(sd) and sd > 0):
             return None
