@@ -34,7 +34,7 @@ def test_context_conditions_are_the_scenarios(tmp_path):
     ctx = load_context(write_world(tmp_path, wind=(2.0, 90.0)))  # from the east: blows west
     sc = ctx.scenario
     assert ctx.conditions == Conditions(sc.mission.duty_cycle, sc.ancillary.sensor_rate_Hz,
-                                        sc.environment.wind_xy_mps)
+                                        sc.environment.wind_xy_mps, sc.environment.ambient_C)
     np.testing.assert_allclose(ctx.conditions.wind_xy_mps, (-2.0, 0.0), atol=1e-12)
 
 
@@ -105,6 +105,8 @@ def test_segment_energy_under_conditions_matches_a_hand_built_state(flat, duty, 
     ((0.9, math.inf), "sensor_rate_Hz must be a finite value >= 0"),
     ((0.9, 0.0, (math.nan, 0.0)), "wind_xy_mps must be two finite numbers"),
     ((0.9, 0.0, (1.0, 2.0, 3.0)), "wind_xy_mps must be two finite numbers"),
+    ((0.9, 0.0, (0.0, 0.0), 200.0), r"ambient_C must be in \[-90, 150\] degC, got 200.0"),
+    ((0.9, 0.0, (0.0, 0.0), math.nan), "ambient_C must be in"),
 ])
 def test_bad_conditions_are_refused_with_the_reason(args, message):
     with pytest.raises(InputError, match=message):
@@ -118,3 +120,22 @@ def test_a_stale_context_copy_is_refused_and_with_scenario_rebuilds(flat):
     with pytest.raises(OrangeError, match="disagree with the scenario's duty cycle"):
         replace(flat, scenario=replace(flat.scenario, mission=mission))
     assert flat.with_scenario(replace(flat.scenario, mission=mission)).conditions.duty_cycle == 0.5
+
+
+def test_the_ambient_temperature_reaches_planned_and_driven_states(flat):
+    """A temperature-dependent term (HVAC on the ambient temperature, diagnosed) charges
+    planned paths at the scenario's ambient temperature, as it charges a recording at its
+    column: path energy and the driven profile agree on it."""
+    from orange_plan.model_builder import model_with_terms
+
+    model = model_with_terms(flat, [*flat.model.term_ids, "hvac_ambient"]).with_theta(
+        {"hvac_heat_W_per_K": 10.0})
+    speed = flat.cruise_speed_mps
+
+    def path_J(ambient_C):
+        conditions = replace(flat.conditions, ambient_C=ambient_C)
+        return path_energy(model, flat.world, PATH_XY_M, speed, conditions)
+
+    warm, cold = path_J(20.0), path_J(5.0)
+    # 15 K below the setpoint x 10 W/K = 150 W more over the mission time
+    assert cold.total_J - warm.total_J == pytest.approx(150.0 * warm.cumulative_time_s[-1], rel=1e-9)

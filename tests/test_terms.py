@@ -24,6 +24,10 @@ def single(term_id: str, omega: float = OMEGA, **theta) -> EnergyModel:
         terms = [surface_rolling_term(("grass", "tile"))]
     elif term_id == "regen":
         terms = [TERMS["grade"], TERMS["regen"]]
+    elif term_id == "battery_resistance":  # an in-battery loss needs a load to act on
+        terms = [TERMS["rolling"], TERMS[term_id]]
+    elif term_id == "battery_temperature":
+        terms = [TERMS["ancillary"], TERMS[term_id]]
     else:
         terms = [TERMS[term_id]]
     return EnergyModel(terms, theta, omega=omega)
@@ -46,6 +50,9 @@ THETA = {
     "hvac": {"hvac_fraction": 0.9},
     "heater": {"heater_fraction": 0.3},
     "drift": {"drift_W": 1200.0},
+    "hvac_ambient": {"hvac_heat_W_per_K": 30.0, "hvac_cool_W_per_K": 50.0},
+    "battery_resistance": {"rolling_kg": 12.5, "battery_loss_per_W": 0.001},
+    "battery_temperature": {"ancillary_W": 100.0, "battery_cold_loss_per_W_K": 1e-4},
 }
 
 
@@ -195,6 +202,9 @@ OWN_FIELD = {
     "hvac": ("hvac_W", [0.0, 400.0, 1500.0]),
     "heater": ("heater_request_W", [0.0, 3000.0, 7000.0]),
     "drift": ("elapsed_s", [0.0, 600.0, 3600.0]),
+    "hvac_ambient": ("ambient_C", [0.0, 20.0, 35.0]),
+    "battery_resistance": ("crr", [0.01, 0.05, 0.2]),
+    "battery_temperature": ("battery_C", [-10.0, 10.0, 30.0]),
 }
 BASE = {"crr": 0.05, "dir_x": 1.0}
 
@@ -420,3 +430,74 @@ def test_drift_bad_elapsed_time():
         MotionState(speed_mps=1.0).with_(elapsed_s=-1.0).validate()
     with pytest.raises(InputError, match="elapsed_s holds a non-finite value"):
         MotionState(speed_mps=1.0).with_(elapsed_s=np.nan).validate()
+
+
+# --- diagnosed physics: HVAC on the ambient temperature, in-battery I^2 R losses ------------
+
+
+def test_hvac_ambient_hand_value():
+    m = model_for("hvac_ambient")
+    # 5 C: 15 K below the 20 C setpoint x 30 W/K = 450 W; 30 C: 10 K above x 50 W/K = 500 W
+    for temp, watts in ((5.0, 450.0), (20.0, 0.0), (30.0, 500.0)):
+        s = MotionState(speed_mps=2.0).with_(ambient_C=temp)
+        assert float(m.power_W(s)) == pytest.approx(watts)
+    # path domain (a power term): 50 m at 5 m/s, D = 0.5 -> 20 s x 450 W = 9000 J
+    e = m.segment_energy(MotionState(speed_mps=5.0).with_(ambient_C=5.0), 50.0, 0.5)
+    assert float(e.total_J) == pytest.approx(9000.0)
+
+
+def test_battery_resistance_hand_value():
+    m = model_for("battery_resistance")
+    # load: rolling 12.5 kg x 9.81 x 0.05 = 6.13125 N at 1 m/s = 6.13125 W;
+    # delivered 6.13125 (1 + 0.001 x 6.13125) = 6.168842 W
+    s = MotionState(speed_mps=1.0, crr=0.05)
+    assert float(m.power_W(s)) == pytest.approx(6.13125 * (1 + 0.001 * 6.13125))
+    assert float(m.power_W(s)) == pytest.approx(6.168842, abs=1e-6)
+    # path: 10 m at 1 m/s, D = 0.8: traction 61.3125 J over 12.5 s mission time -> mean load
+    # 4.905 W -> 61.3125 x (1 + 0.004905) = 61.61324 J
+    e = m.segment_energy(s, 10.0, 0.8)
+    assert float(e.total_J) == pytest.approx(61.61324, abs=1e-5)
+
+
+def test_battery_temperature_hand_value():
+    m = model_for("battery_temperature")
+    # 100 W load; 5 C cells: 20 K x 1e-4 = 0.002 /W -> 100 (1 + 0.2) = 120 W; 30 C: 100 W
+    for temp, watts in ((5.0, 120.0), (25.0, 100.0), (30.0, 100.0)):
+        assert float(m.power_W(MotionState(speed_mps=0.0).with_(battery_C=temp))) == pytest.approx(watts)
+
+
+def test_battery_loss_jacobian_matches_finite_differences():
+    """Calibration and the reserve linearise the I^2 R loss: its Jacobian must be the
+    derivative of the power and of the path energy."""
+    m = EnergyModel([TERMS["ancillary"], TERMS["rolling"], TERMS["turning"],
+                     TERMS["battery_resistance"], TERMS["battery_temperature"]],
+                    {"ancillary_W": 20.0, "rolling_kg": 12.5, "turn_J_per_rad": 3.0,
+                     "battery_loss_per_W": 2e-3, "battery_cold_loss_per_W_K": 1e-4}, omega=OMEGA)
+    s = MotionState(speed_mps=np.array([0.5, 1.0, 2.0]), crr=0.05,
+                    yaw_rate_radps=np.array([0.0, 0.3, -0.2])).with_(battery_C=np.array([0.0, 10.0, 30.0]))
+    lengths, turns = np.array([1.0, 2.0, 5.0]), np.array([0.0, 0.4, 1.0])
+    for value, jac in ((lambda th: m.power_W(s, th), m.power_jacobian(s)),
+                       (lambda th: m.segment_energy(s, lengths, 0.8, turns, th).total_J,
+                        m.segment_energy_jacobian(s, lengths, 0.8, turns))):
+        for k in range(len(m.names)):
+            h = 1e-6 * max(1.0, abs(m.theta[k]))
+            up, down = m.theta.copy(), m.theta.copy()
+            up[k] += h
+            down[k] -= h
+            numeric = (np.asarray(value(up)) - np.asarray(value(down))) / (2 * h)
+            np.testing.assert_allclose(jac[:, k], numeric, rtol=1e-5, atol=1e-9)
+
+
+def test_battery_temperature_bad_cell_temperature():
+    with pytest.raises(InputError, match=r"MotionState.battery_C = 400 is outside \[-90, 150\]"):
+        MotionState(speed_mps=1.0).with_(battery_C=np.array([20.0, 400.0])).validate()
+
+
+def test_hvac_ambient_bad_non_finite_temperature():
+    with pytest.raises(InputError, match="ambient_C holds a non-finite value"):
+        MotionState(speed_mps=1.0).with_(ambient_C=np.inf).validate()
+
+
+def test_battery_resistance_bad_non_finite_coefficient():
+    with pytest.raises(InputError, match="coefficients must be finite"):
+        single("battery_resistance", rolling_kg=1.0, battery_loss_per_W=np.nan)

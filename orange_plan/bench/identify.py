@@ -178,7 +178,8 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
                    to_depletion=True)
     rec = recording_from_frame(sim.frame, f"{ctx.scenario.name} seed {seed}")
-    state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz)
+    state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
+                            channel_defaults=ctx.conditions.channels)
     est = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J, memory_s, window_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s,
                      until_s=until_fraction * sim.duration_s)
@@ -318,6 +319,7 @@ def whole_run_prediction(model, rec, ctx, settings: dict):
     predictive standard deviation (``telemetry.replay.RunEnergy``)."""
 
     state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
+                            channel_defaults=ctx.conditions.channels,
                             grade_window_m=settings.get("grade_window_m"),
                             yaw_rate_column=settings.get("yaw_rate_column"))
     return run_energy(rec, model, state)
@@ -360,6 +362,7 @@ def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
     ahead is known, as in a planned mission). Errors are (predicted - recorded) / recorded.
     """
     state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
+                            channel_defaults=ctx.conditions.channels,
                             grade_window_m=settings.get("grade_window_m"),
                             yaw_rate_column=settings.get("yaw_rate_column"))
     t, power = rec.t_s, rec.frame["power_W"].to_numpy(float)

@@ -15,18 +15,21 @@ from orange_plan.errors import InputError
 
 @dataclass(frozen=True)
 class Conditions:
-    """Duty cycle, sensor rate and wind (or water current) of a mission.
+    """Duty cycle, sensor rate, wind (or water current) and temperature of a mission.
 
     Attributes
     ----------
     duty_cycle : D, the fraction of mission time spent moving, in (0, 1] [-]
     sensor_rate_Hz : sensor frame rate, >= 0 [Hz]
     wind_xy_mps : mean wind or water current (x east, y north) [m/s]
+    ambient_C : ambient temperature [degC]; the battery is taken to sit at it too (the
+        ``ambient_C`` and ``battery_C`` channels of a planned state, ``channels``)
     """
 
     duty_cycle: float
     sensor_rate_Hz: float = 0.0
     wind_xy_mps: tuple[float, float] = (0.0, 0.0)
+    ambient_C: float = 20.0
 
     def __post_init__(self):
         # checked here, the one place they are built, so no consumer re-validates them
@@ -39,13 +42,22 @@ class Conditions:
             raise InputError(f"wind_xy_mps must be two finite numbers [m/s], got {self.wind_xy_mps}")
         object.__setattr__(self, "duty_cycle", float(self.duty_cycle))
         object.__setattr__(self, "sensor_rate_Hz", float(self.sensor_rate_Hz))
+        if not (math.isfinite(self.ambient_C) and -90.0 <= self.ambient_C <= 150.0):
+            raise InputError(f"ambient_C must be in [-90, 150] degC, got {self.ambient_C}")
         object.__setattr__(self, "wind_xy_mps", wind)
+        object.__setattr__(self, "ambient_C", float(self.ambient_C))
+
+    @property
+    def channels(self) -> dict[str, float]:
+        """Operating-condition channels of a planned state (``physics.state.Channel``):
+        the temperatures that temperature-dependent terms read."""
+        return {"ambient_C": self.ambient_C, "battery_C": self.ambient_C}
 
     @classmethod
     def of(cls, scenario) -> Conditions:
         """The scenario's conditions: mission duty cycle, sensor rate, environment wind."""
         return cls(scenario.mission.duty_cycle, scenario.ancillary.sensor_rate_Hz,
-                   scenario.environment.wind_xy_mps)
+                   scenario.environment.wind_xy_mps, scenario.environment.ambient_C)
 
     def with_wind(self, wind_xy_mps) -> Conditions:
         """The same conditions under another wind or current [m/s]."""

@@ -192,13 +192,28 @@ class EnergyModel:
         force = self.traction_force_N(state, theta)
         return self.charged_force_N(force, theta=theta) * state.speed_mps
 
-    def power_W(self, state: MotionState, theta=None):
-        """Battery power at ``state`` in the time domain [W]."""
+    def load_power_W(self, state: MotionState, theta=None):
+        """Power the loads draw, before any in-battery loss: ancillary + traction + turning [W]."""
         return (
             self.ancillary_power_W(state, theta)
             + self.traversal_power_W(state, theta)
             + self._group_sum(state, "rate", theta)
         )
+
+    def battery_loss_factor(self, state: MotionState, theta=None):
+        """``B`` of the in-battery I^2 R loss ``B P^2`` [1/W] (0 without ``battery`` terms)."""
+        return self._group_sum(state, "battery", theta)
+
+    def power_W(self, state: MotionState, theta=None):
+        """Battery power at ``state`` in the time domain [W]: the load power ``P`` plus the
+        in-battery loss, ``P (1 + B P)`` (``physics.terms``)."""
+        load = self.load_power_W(state, theta)
+        if not self._has_group("battery"):
+            return load
+        return load * (1.0 + self.battery_loss_factor(state, theta) * load)
+
+    def _has_group(self, group: str) -> bool:
+        return any(t.group == group for t in self.terms)
 
     def segment_energy(
         self,
@@ -226,7 +241,18 @@ class EnergyModel:
         ancillary_J = self.ancillary_power_W(state, theta) * mission_time_s
         traversal_J = self.traversal_power_W(state, theta) * moving_time_s
         turning_J = self.turning_energy_J(heading_change_rad, theta)
+        if self._has_group("battery"):
+            # I^2 R at the step's mean load power, shared by the loads in proportion to their
+            # draw: (A + T)(1 + B P_mean) = A + T + B P_mean^2 t_mission.
+            scale = 1.0 + self.battery_loss_factor(state, theta) * self._mean_load_W(
+                ancillary_J, traversal_J, mission_time_s)
+            ancillary_J, traversal_J = ancillary_J * scale, traversal_J * scale
         return SegmentEnergy(ancillary_J, traversal_J, turning_J, moving_time_s, mission_time_s)
+
+    @staticmethod
+    def _mean_load_W(ancillary_J, traversal_J, mission_time_s):
+        """Mean load power of a step (its ancillary and traction energy over its time) [W]."""
+        return (ancillary_J + traversal_J) / mission_time_s
 
     def turning_energy_J(self, heading_change_rad, theta=None):
         """Energy of the ``rate`` terms for heading changes [J] (0 without such terms)."""
@@ -252,9 +278,27 @@ class EnergyModel:
             elif term.group == "force":
                 regen = self.regen_fraction()
                 columns += [np.where(moving_on, p * speed, regen * p * speed) for p in phis]
-            else:  # regen: d/d(eff) of -eff Omega^2 max(0, -F) v
+            elif term.group == "regen":  # d/d(eff) of -eff Omega^2 max(0, -F) v
                 columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * speed)
-        return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
+            else:  # battery: filled in below, once the load power is known
+                columns += [None] * len(phis)
+        return self._with_battery_loss(state, columns, shape,
+                                       lambda: np.asarray(self.load_power_W(state), float))
+
+    def _with_battery_loss(self, state, columns, shape, load, duration=1.0) -> np.ndarray:
+        """Jacobian columns of the loads turned into those of ``E (1 + B E / duration)`` (the
+        in-battery loss, ``E`` the load energy or power): a load column scales by
+        ``1 + 2 B E / duration``, a battery coefficient's column is ``phi E^2 / duration``."""
+        if not self._has_group("battery"):
+            return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
+        load = np.broadcast_to(load(), shape)
+        factor = np.broadcast_to(np.asarray(self.battery_loss_factor(state), float), shape)
+        phis = iter(np.broadcast_to(np.asarray(p, float), shape) for t in self.terms
+                    if t.group == "battery" for p in t.features(state))
+        out = [next(phis) * load**2 / duration if c is None
+               else np.broadcast_to(c, shape) * (1.0 + 2.0 * factor * load / duration)
+               for c in columns]
+        return np.stack(out, axis=-1)
 
     def segment_energy_jacobian(
         self, state: MotionState, length_m, duty_cycle, heading_change_rad=0.0
@@ -283,9 +327,34 @@ class EnergyModel:
                     columns.append(phi)
                 elif term.group == "force":
                     columns.append(np.where(force > 0, phi * length, regen * phi * length))
-                else:  # regen efficiency: recovered energy is -eff Omega^2 max(0, -F) L
+                elif term.group == "regen":  # recovered energy is -eff Omega^2 max(0, -F) L
                     columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * length)
-        return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
+                else:  # battery: filled in below
+                    columns.append(None)
+        if not self._has_group("battery"):
+            return np.stack([np.broadcast_to(c, shape) for c in columns], axis=-1)
+        # the turning columns (rate terms) are charged at a vertex, outside the mean load
+        plain = EnergyModel(tuple(t for t in self.terms if t.group != "battery"),
+                            {n: v for n, v in self.as_dict().items() if n in self._plain_names()},
+                            None, self.omega)
+        e = plain.segment_energy(state, length_m, duty_cycle, heading_change_rad)
+        mission = np.asarray(e.mission_time_s, float)
+        rate = {i for i, t in enumerate(self._coefficient_groups()) if t == "rate"}
+        turn = [c if i in rate else None for i, c in enumerate(columns)]
+        load = [None if c is None else (0.0 * c if i in rate else c) for i, c in enumerate(columns)]
+        jac = self._with_battery_loss(state, load, shape,
+                                      lambda: np.asarray(e.ancillary_J + e.traversal_J, float),
+                                      np.broadcast_to(mission, shape))
+        for i, c in enumerate(turn):
+            if c is not None:
+                jac[..., i] += np.broadcast_to(c, shape)
+        return jac
+
+    def _plain_names(self) -> set[str]:
+        return {c for t in self.terms if t.group != "battery" for c in t.coefficients}
+
+    def _coefficient_groups(self) -> list[str]:
+        return [t.group for t in self.terms for _ in t.coefficients]
 
     def energy_variance_J2(self, gradient: np.ndarray) -> np.ndarray:
         """Parameter part ``g' Cov g`` of energies with gradients ``gradient`` (..., k) [J^2]."""

@@ -94,6 +94,7 @@ class Steps:
             crr=self.crr,
             sensor_rate_Hz=conditions.sensor_rate_Hz,
             surface_code=self.surface_code,
+            channels=conditions.channels,
         )
 
     def per_segment(self, values) -> np.ndarray:

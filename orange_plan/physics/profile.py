@@ -169,11 +169,13 @@ def spread_yaw_rate(heading, last_heading, carry, k: int, dt: float):
     return spread[:n] / dt, spread[n:]
 
 
-def drive_state(steps, kin: dict, yaw_rate_radps, wind_xy_mps, crr, sensor_rate_Hz) -> MotionState:
+def drive_state(steps, kin: dict, yaw_rate_radps, wind_xy_mps, crr,
+                conditions: Conditions) -> MotionState:
     """MotionState of driven samples on the sub-steps ``steps`` (``pathcost.Steps``).
 
     ``wind_xy_mps`` (2,) or (n, 2) and ``crr`` (n,) are passed in because the simulator
     perturbs them (gusts, roughness); the planner passes the mean wind and ``steps.crr``.
+    The sensor rate and the temperature channels come from ``conditions``.
     """
     j = kin["step"]
     wind = np.broadcast_to(np.asarray(wind_xy_mps, float), (j.size, 2))
@@ -181,8 +183,8 @@ def drive_state(steps, kin: dict, yaw_rate_radps, wind_xy_mps, crr, sensor_rate_
         speed_mps=kin["v"], cos_t=steps.cos_t[j], sin_t=steps.sin_t[j], dir_x=steps.dir_x[j],
         dir_y=steps.dir_y[j], wind_x_mps=wind[:, 0], wind_y_mps=wind[:, 1], crr=crr,
         accel_mps2=kin["accel"], yaw_rate_radps=yaw_rate_radps,
-        sensor_rate_Hz=np.full(j.size, float(sensor_rate_Hz)),
-        surface_code=steps.surface_code[j])
+        sensor_rate_Hz=np.full(j.size, conditions.sensor_rate_Hz),
+        surface_code=steps.surface_code[j], channels=conditions.channels)
 
 
 def step_headings_rad(steps) -> np.ndarray:
@@ -257,7 +259,7 @@ def drive_path(steps, step_speed_mps, accel_max_mps2: float, conditions: Conditi
     yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0), max(1, round(TURN_SPREAD_S / dt_s)),
                              dt_s)
     return kin, drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[kin["step"]],
-                            conditions.sensor_rate_Hz)
+                            conditions)
 
 
 def profile_energy(model, steps, step_speed_mps, accel_max_mps2: float, conditions: Conditions,
@@ -488,7 +490,7 @@ def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, conditions: 
     kins = _split_kinematics(_path_kinematics(steps_list, step_speed_list, accel_max_mps2,
                                               conditions.duty_cycle, dt_s, stop_every_s))
     return [(kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), conditions.wind_xy_mps,
-                              steps.crr[kin["step"]], conditions.sensor_rate_Hz))
+                              steps.crr[kin["step"]], conditions))
             for steps, kin in zip(steps_list, kins)]
 
 
@@ -516,8 +518,7 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
     yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
                                           dt_s)[0] for lo, hi in pairwise(bounds)])
     kin = {"step": j, "v": v_rec[valid], "accel": accel[valid]}
-    state = drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[j],
-                        conditions.sensor_rate_Hz)
+    state = drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[j], conditions)
     power = np.broadcast_to(np.asarray(model.power_W(state), float), j.shape)
     jac = np.broadcast_to(np.asarray(model.power_jacobian(state), float), (j.size, k))
     energy, gradient = np.empty(n), np.empty((n, k))

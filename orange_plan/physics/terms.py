@@ -12,6 +12,11 @@ Battery power is a sum of terms, each linear in its own coefficient(s) ``theta``
   nothing back when the net force is negative (SPEC §7). The ``regen`` term is the
   explicit exception: it returns a fraction of the negative part.
 * ``rate`` terms are charged per radian of heading change (skid-steer turning losses).
+* ``battery`` terms are losses inside the battery that grow with the square of the current
+  (I^2 R, Joule heating of the cells): with the load power ``P`` (the three groups above) the
+  battery delivers ``P (1 + B P)``, ``B = sum_battery theta*phi`` [1/W] (``R / V^2`` for a
+  resistance R at terminal voltage V). Not linear in theta: the calibration, the reserve and
+  diagnosis linearise it (``EnergyModel.power_jacobian``).
 
 The coefficients are lumped battery-side quantities (DESIGN.md): ``rolling_kg = m/Omega``,
 ``drag_kg_per_m = c/Omega``, ``grade_kg = inertia_kg = m/Omega``. Every feature is written
@@ -35,7 +40,7 @@ G_MPS2 = 9.81
 DEFAULT_REGEN_EFFICIENCY = 0.5
 """A priori ``regen_efficiency``: fraction of braking/descending energy recovered [-]."""
 
-Group = Literal["power", "force", "rate", "regen"]
+Group = Literal["power", "force", "rate", "regen", "battery"]
 
 
 @dataclass(frozen=True)
@@ -46,7 +51,8 @@ class Term:
     ----------
     id : vocabulary id (SPEC §6)
     group : ``power`` [W per coefficient unit], ``force`` [N per coefficient unit],
-        ``rate`` [J/rad per coefficient unit] or ``regen`` (recovery fraction)
+        ``rate`` [J/rad per coefficient unit], ``regen`` (recovery fraction) or ``battery``
+        [1/W per coefficient unit] (module docstring)
     coefficients : names of the coefficients (unit suffixed)
     feature : ``feature(state) -> tuple`` of one feature per coefficient
     description : one line for the README and reports
@@ -225,6 +231,46 @@ def drift_feature(state: MotionState):
     return (_per_sample(ops.exp(-state.channel(ELAPSED_S.name) / DRIFT_TAU_S), state),)
 
 
+HVAC_SETPOINT_C = 20.0
+"""Cabin / enclosure temperature an HVAC holds [degC]: heating below it, cooling above."""
+BATTERY_REFERENCE_C = 25.0
+"""Cell temperature at which the battery's internal resistance is its nominal value [degC];
+below it the resistance grows (electrolyte conductivity falls with temperature)."""
+
+AMBIENT_C = Channel("ambient_C", -90.0, 150.0, "ambient (outside air or water) temperature; in "
+                    "planning the scenario's [environment] ambient_C [degC]")
+BATTERY_C = Channel("battery_C", -90.0, 150.0, "battery cell temperature; in planning the "
+                    "scenario's ambient_C [degC]")
+
+
+def hvac_ambient_feature(state: MotionState):
+    """Degrees below and above the HVAC setpoint: ``(max(0, T_set - T), max(0, T - T_set))``
+    [K], T the ambient temperature, T_set = HVAC_SETPOINT_C.
+
+    With no HVAC meter, the heating and cooling draw follow the temperature difference the
+    climate control works against (heat flow through the enclosure ~ UA (T_set - T)).
+    Coefficients ``hvac_heat_W_per_K``, ``hvac_cool_W_per_K`` [W/K] (battery side).
+    """
+    temp = state.channel(AMBIENT_C.name)
+    return (_per_sample(ops.fmax(HVAC_SETPOINT_C - temp, 0.0), state),
+            _per_sample(ops.fmax(temp - HVAC_SETPOINT_C, 0.0), state))
+
+
+def battery_resistance_feature(state: MotionState):
+    """Constant 1 [-]: the I^2 R loss ``B P^2`` with ``B = battery_loss_per_W`` [1/W] = R/V^2."""
+    return (_per_sample(1.0, state),)
+
+
+def battery_temperature_feature(state: MotionState):
+    """Degrees below the reference cell temperature ``max(0, T_ref - T_battery)`` [K].
+
+    Coefficient ``battery_cold_loss_per_W_K`` [1/(W K)]: the extra I^2 R loss factor per
+    kelvin below BATTERY_REFERENCE_C (internal resistance rises as the cells cool).
+    """
+    return (_per_sample(ops.fmax(BATTERY_REFERENCE_C - state.channel(BATTERY_C.name), 0.0),
+                        state),)
+
+
 TERMS: dict[str, Term] = {
     t.id: t
     for t in (
@@ -259,9 +305,29 @@ TERMS: dict[str, Term] = {
         Term("drift", "power", ("drift_W",), drift_feature,
              "extra power at a cold start, decaying with time constant DRIFT_TAU_S",
              (ELAPSED_S,)),
+        Term("hvac_ambient", "power", ("hvac_heat_W_per_K", "hvac_cool_W_per_K"),
+             hvac_ambient_feature,
+             "heating / cooling power following the ambient temperature (no HVAC meter)",
+             (AMBIENT_C,)),
+        Term("battery_resistance", "battery", ("battery_loss_per_W",),
+             battery_resistance_feature,
+             "I^2 R loss inside the battery: delivered power P (1 + B P), B = R / V^2"),
+        Term("battery_temperature", "battery", ("battery_cold_loss_per_W_K",),
+             battery_temperature_feature,
+             "extra I^2 R loss per kelvin of cell temperature below 25 C", (BATTERY_C,)),
     )
 }
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""
+
+VARIANT_OF = {"rolling_torque": "rolling", "turning_torque": "turning", "heater": "hvac",
+              "hvac_ambient": "hvac"}
+"""Terms of our own that are variants of a SPEC §6 vocabulary id (reports give both)."""
+
+
+def spec_id(term_id: str) -> str:
+    """The SPEC §6 vocabulary id a term reports under (its own id unless a variant)."""
+    return VARIANT_OF.get(term_id, term_id)
+
 
 REFERENCE_TERM_IDS = ("ancillary", "sensor_rate", "hover", "rolling", "aero_drag", "grade",
                       "turning")

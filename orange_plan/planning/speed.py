@@ -215,7 +215,8 @@ class SpeedSolver:
                            dir_x=par["dir_x"], dir_y=par["dir_y"],
                            wind_x_mps=wind_x, wind_y_mps=wind_y,
                            crr=par["crr"], sensor_rate_Hz=problem.conditions.sensor_rate_Hz,
-                           surface_code=par["surface_code"])
+                           surface_code=par["surface_code"],
+                           channels=problem.conditions.channels)
 
     def solve(self, problem: SpeedProblem, model_world=None, warm_start=None) -> SpeedProfile:
         """Optimise the speeds; re-evaluate the result exactly with ``path_energy``.

@@ -7,6 +7,8 @@ wheels-up rows, the same yaw rate and the same operating-condition channels.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import pandas as pd
 
@@ -27,7 +29,8 @@ recording column of its name (a missing value or column counts as 0)."""
 
 def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
                     default_crr: float | None = None, grade_window_m: float | None = None,
-                    yaw_rate_column: str | None = None) -> MotionState:
+                    yaw_rate_column: str | None = None,
+                    channel_defaults: Mapping[str, float] | None = None) -> MotionState:
     """Per-sample MotionState of a recording, for ``EnergyModel.power_W`` and its Jacobian.
 
     Parameters
@@ -41,6 +44,8 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
         ``GRADE_WINDOW_M`` (suits GPS/DEM elevation outdoors; use ~1 m on a lab ramp)
     yaw_rate_column : take the yaw rate from this column instead of ``yaw_rate_radps``
         (e.g. BorealTC's ``wheel_yaw_rate_radps``: skid-steer scrub follows the wheels)
+    channel_defaults : value of a channel whose column the recording lacks (the mission's
+        ``Conditions.channels``: its ambient temperature); else 0
 
     Returns
     -------
@@ -82,8 +87,10 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
         rate = frame["sensor_rate_Hz"].to_numpy(float)
     else:
         rate = np.full(n, float(sensor_rate_Hz))
+    defaults = channel_defaults or {}
     channels = {name: DERIVED_CHANNELS[name](recording) if name in DERIVED_CHANNELS
-                else _column_or_zero(frame, name) for name in CHANNELS}
+                else _column_or_default(frame, name, defaults.get(name, 0.0))
+                for name in CHANNELS}
     state = MotionState(
         speed_mps=speed, cos_t=cos_t, sin_t=sin_t, dir_x=dir_x, dir_y=dir_y,
         wind_x_mps=wind_x, wind_y_mps=wind_y, crr=crr,
@@ -125,11 +132,12 @@ def _no_traction(state: MotionState, mask: np.ndarray) -> MotionState:
     return state.with_(**changes)
 
 
-def _column_or_zero(frame: pd.DataFrame, column: str) -> np.ndarray:
-    """A column as floats with missing values as 0, or zeros when the column is absent."""
+def _column_or_default(frame: pd.DataFrame, column: str, default: float) -> np.ndarray:
+    """A column as floats with missing values as ``default``, or ``default`` throughout when
+    the column is absent."""
     if column not in frame.columns:
-        return np.zeros(len(frame))
-    return frame[column].fillna(0.0).to_numpy(float)
+        return np.full(len(frame), float(default))
+    return frame[column].fillna(default).to_numpy(float)
 
 
 def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:
