@@ -49,9 +49,15 @@ WRITTEN_BACK = tuple(row.physical for row in LUMPED.values()
 clipped at 0."""
 
 
-def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path) -> dict:
-    """The scenario's TOML mapping with the fitted values (module docstring rule)."""
+def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path,
+                             changes: dict | None = None) -> dict:
+    """The scenario's TOML mapping with the fitted values (module docstring rule), and
+    ``changes``: other scenario values by dotted key (``environment.wind_speed_mps``: a wind
+    that diagnosis found)."""
     data = tomllib.loads(Path(scenario.path).read_text(encoding="utf-8"))
+    for dotted, value in (changes or {}).items():
+        section, key = dotted.split(".")
+        data.setdefault(section, {})[key] = value
     data["map"] = Path(os.path.relpath(scenario.map_path, out_dir.resolve())).as_posix()
     theta, sd = model.as_dict(), model.stderr()
     physical = physical_values(scenario, model)
@@ -90,9 +96,11 @@ def _check_rebuild(path: Path, model: EnergyModel) -> None:
                           f"(coefficients {wrong})")
 
 
-def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) -> Path:
+def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path,
+                              changes: dict | None = None) -> Path:
     """Write the calibrated scenario atomically; it is loaded back and must rebuild ``model``'s
     coefficients and discrepancy (correlations are not stored) before it replaces ``path``.
+    ``changes``: further scenario values by dotted key (``calibrated_scenario_dict``).
 
     A missing output folder is created, as by every other writer (``atomic_path``).
 
@@ -104,7 +112,7 @@ def write_calibrated_scenario(scenario, model: EnergyModel, path: str | Path) ->
         The written file would not load or not rebuild the model (an internal failure).
     """
     path = Path(path)
-    text = tomli_w.dumps(calibrated_scenario_dict(scenario, model, path.parent))
+    text = tomli_w.dumps(calibrated_scenario_dict(scenario, model, path.parent, changes))
     with atomic_path(path, suffix=".toml") as tmp:
         tmp.write_text(text, encoding="utf-8")
         try:

@@ -1,0 +1,1107 @@
+"""Diagnosis: find the physics a model left out of a recording, model it, show the fit improve.
+
+The problem, apart from how it is solved. A recording gives the battery power ``y(t)`` and the
+motion; the scenario's model, its coefficients refitted to the recording (the *baseline*),
+predicts ``P(t)``. Where the residual ``y - P`` is larger than noise, some physics is missing.
+Find
+
+1. *where*: the time windows, places (surfaces) and operating conditions (speed, grade, yaw
+   rate, temperatures...) in which the residual departs from zero;
+2. *what*: the smallest set of vocabulary terms (SPEC §6), absent from the model, whose
+   addition explains the residual on data they were not fitted on, each with physically
+   signed coefficients, their uncertainties and the share of the residual it explains;
+3. the model with those terms, and how much better it predicts (in-sample, held out, and
+   the whole run's energy).
+
+How it is solved. Every term is linear in its coefficients once the no-recovery clip is held
+at the baseline's mask (``EnergyModel.power_jacobian``): the baseline's columns ``J`` and a
+candidate's columns ``C`` (its ``power_jacobian`` columns at coefficient 0, or, for effects
+that are not a term, a payload step or a wind vector, columns built here) form one linear
+design. Forward selection: each round, every candidate not yet chosen is refitted *together
+with* the baseline terms (bounded least squares: coefficients keep their physical sign) on
+blocked folds (interleaved time blocks: residuals are autocorrelated, so a fit judged on
+neighbouring samples would look better than it is) and judged on the held-out blocks. The
+best one is accepted only when all of these hold:
+
+* the held-out RMSE falls by at least ``MIN_GAIN`` (a share) over the current model;
+* each of its coefficients is at least ``MIN_T`` standard errors from zero, the standard
+  errors inflated by the residuals' integrated autocorrelation time
+  (``calibrate.inflation_factor``);
+* the Bayesian information criterion, with the *effective* number of samples
+  ``n / tau``, falls.
+
+A backward pass then drops any chosen term the others make redundant. Non-linear parameters
+(the time a payload changes, a wind vector) are estimated inside each fold on its training
+blocks only.
+
+Why it does not invent physics. The baseline terms are refitted first, so a mis-set
+coefficient of a term already present is absorbed by that term, not blamed on a new one.
+A candidate must predict blocks it never saw, by more than a share of the error, with
+coefficients of the physical sign, significant under autocorrelation, and pay for its
+parameters in BIC: noise, an autocorrelated disturbance, or a column that carries nothing
+(a wrong sensor) fail at least one of these. A null result says so explicitly, with the best
+candidate's figures as evidence.
+
+A term whose coefficients are all 0 in the scenario counts as left out (a switched-off term,
+DESIGN.md), and can be found.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from orange_plan.errors import InputError
+from orange_plan.identify.calibrate import Samples, inflation_factor, recording_samples
+from orange_plan.model_builder import (
+    is_mass_coefficient,
+    make_term,
+    prior_variance,
+    reference_value,
+)
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.terms import TERMS, spec_id
+from orange_plan.physics.wind import wind_speed_and_from
+
+MIN_GAIN = 0.03
+"""Smallest relative fall of the held-out RMSE for a candidate to be kept [-]."""
+MIN_T = 4.0
+"""Smallest |coefficient| / standard error (autocorrelation-inflated) of a kept term [-]."""
+N_BLOCKS = 20
+"""Equal-time blocks of the recording; fold k holds out blocks k, k + N_FOLDS, ... [-]."""
+N_FOLDS = 5
+LANDED_MIN_S = 10.0
+"""A leading or trailing stationary period at least this long counts as landed [s]."""
+PRIOR_SCALE = 10.0
+"""The scenario's a priori standard errors are widened by this factor for the baseline
+refit, as in calibration: they steer only what the recording cannot separate [-]."""
+
+TERM_CANDIDATES = ("ancillary", "sensor_rate", "hover", "rolling", "surface_rolling",
+                   "aero_drag", "grade", "inertia", "regen", "turning", "turning_torque",
+                   "hvac", "hvac_ambient", "heater", "battery_resistance",
+                   "battery_temperature", "drift")
+"""Candidates that are terms of ``physics.terms`` (besides ``wind`` and ``payload``)."""
+
+
+# --- the linear design --------------------------------------------------------------------
+
+
+@dataclass
+class Design:
+    """One recording against the baseline model, as a linear design.
+
+    Attributes
+    ----------
+    samples : the recording's samples (``calibrate.recording_samples``)
+    base : the baseline model, refitted to the recording
+    columns : the baseline's Jacobian columns at its coefficients (n, p) [W per unit]
+    lower, upper : physical bounds of the baseline coefficients
+    prior_mean, prior_weight : weak prior on the baseline coefficients (scenario values)
+    fold : fold index of each sample (interleaved time blocks)
+    t_s : time since the start [s]
+    airborne : not in the recording's leading or trailing stationary period (landed)
+    columns_of : the recording's column names (what the candidates may read)
+    scenario, world : the scenario and its world
+    """
+
+    samples: Samples
+    base: EnergyModel
+    columns: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    prior_mean: np.ndarray
+    prior_weight: np.ndarray
+    fold: np.ndarray
+    t_s: np.ndarray
+    airborne: np.ndarray
+    columns_of: frozenset
+    scenario: object
+    world: object
+    frame: object = None
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.samples.power_W
+
+    @property
+    def state(self):
+        return self.samples.state
+
+    @property
+    def n(self) -> int:
+        return self.y.size
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A candidate's columns on one set of training rows.
+
+    Attributes
+    ----------
+    columns : (n, k) power per unit of each linear coefficient [W per unit]
+    names : the linear coefficients' names
+    lower, upper : their physical bounds
+    extra : non-linear parameters estimated on the training rows (payload time, wind) with
+        their standard errors: name -> (value, sd)
+    """
+
+    columns: np.ndarray
+    names: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A vocabulary term (or a variant) tried against the residual.
+
+    Attributes
+    ----------
+    id : the candidate's own id (a ``physics.terms`` id, or ``wind`` / ``payload``)
+    applies : ``applies(design) -> reason it cannot apply, or None``
+    effect : ``effect(design, residual, rows) -> Effect`` (rows: the training samples)
+    feature : ``feature(design) -> (values, label)``: what a person would plot the residual
+        against
+    """
+
+    id: str
+    applies: Callable
+    effect: Callable
+    feature: Callable
+
+    @property
+    def spec_id(self) -> str:
+        return spec_id(self.id)
+
+
+# --- bounded least squares on Gram matrices ----------------------------------------------
+
+
+def _solve(gram: np.ndarray, rhs: np.ndarray, lower, upper) -> np.ndarray:
+    """Bounded least squares from normal equations: ``min x'Gx - 2 b'x`` in ``[lower, upper]``.
+
+    Written as ``|R x - z|^2`` with ``R'R = G`` (Cholesky, with a tiny ridge for rank
+    deficiency), so each fold's solve is k x k however long the recording.
+    """
+    k = rhs.size
+    scale = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
+    g = gram / np.outer(scale, scale) + 1e-10 * np.eye(k)
+    r = np.linalg.cholesky(g).T
+    z = np.linalg.solve(r.T, rhs / scale)
+    res = lsq_linear(r, z, bounds=(np.asarray(lower) * scale, np.asarray(upper) * scale),
+                     method="bvls")
+    return res.x / scale
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A design fitted on all samples and judged on held-out folds.
+
+    Attributes
+    ----------
+    theta : coefficients fitted on all samples
+    sd : their standard errors, autocorrelation-inflated
+    predicted_W : in-sample prediction [W]
+    held_out_W : each sample predicted by the fit that did not see its fold [W]
+    cv_rmse_W, rmse_W : held-out and in-sample RMSE [W]
+    tau : residual autocorrelation inflation [-]
+    extra : non-linear parameters (all samples): name -> (value, sd)
+    names : coefficient names (baseline, then candidates)
+    """
+
+    theta: np.ndarray
+    sd: np.ndarray
+    predicted_W: np.ndarray
+    held_out_W: np.ndarray
+    cv_rmse_W: float
+    rmse_W: float
+    tau: float
+    extra: dict
+    names: tuple
+
+    def bic(self, tau: float) -> float:
+        """Bayesian information criterion with ``n / tau`` effective samples; compare fits
+        at one ``tau`` (the reference model's), or a whiter residual would pay for its
+        parameters with fewer samples."""
+        n_eff = max(self.predicted_W.size / tau, self.theta.size + 2.0)
+        return n_eff * np.log(max(self.rmse_W**2, 1e-300)) + self.theta.size * np.log(n_eff)
+
+
+def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
+    """Fit the baseline columns plus the chosen candidates' effects (module docstring)."""
+    n, p = d.columns.shape
+    held = np.zeros(n)
+    for f in range(N_FOLDS):
+        train = d.fold != f
+        x, lo, hi, _names, _extra = _stack(d, chosen, train)
+        theta = _fit_rows(d, x, lo, hi, train, p)
+        held[~train] = x[~train] @ theta
+    x, lo, hi, names, extra = _stack(d, chosen, np.ones(n, bool))
+    theta = _fit_rows(d, x, lo, hi, np.ones(n, bool), p)
+    pred = x @ theta
+    resid = d.y - pred
+    tau = inflation_factor(resid, d.samples, 30.0)
+    s2 = float(np.mean(resid**2))
+    gram = x.T @ x + np.diag(np.r_[d.prior_weight, np.zeros(x.shape[1] - p)])
+    cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
+               float(np.sqrt(s2)), float(tau), extra, tuple(names))
+
+
+def _stack(d: Design, chosen, rows):
+    """The design's columns on training ``rows``: each candidate's non-linear parameters are
+    estimated on the residual of the baseline and the candidates before it, fitted on
+    ``rows`` only (so a held-out fold never informs them)."""
+    cols, lo, hi, names, extra = [d.columns], [d.lower], [d.upper], list(d.base.names), {}
+    p = d.columns.shape[1]
+    for cand in chosen:
+        x = np.hstack(cols)
+        resid = d.y - x @ _fit_rows(d, x, np.concatenate(lo), np.concatenate(hi), rows, p)
+        eff = cand.effect(d, resid, rows)
+        cols.append(eff.columns)
+        lo.append(eff.lower)
+        hi.append(eff.upper)
+        names += [f"{cand.id}.{nm}" for nm in eff.names]
+        extra.update({f"{cand.id}.{k}": v for k, v in eff.extra.items()})
+    return np.hstack(cols), np.concatenate(lo), np.concatenate(hi), names, extra
+
+
+def _fit_rows(d: Design, x, lo, hi, rows, p: int) -> np.ndarray:
+    xr = x[rows]
+    gram = xr.T @ xr
+    rhs = xr.T @ d.y[rows]
+    w = np.r_[d.prior_weight, np.zeros(x.shape[1] - p)]
+    gram[np.diag_indices_from(gram)] += w
+    rhs = rhs + w * np.r_[d.prior_mean, np.zeros(x.shape[1] - p)]
+    return _solve(gram, rhs, lo, hi)
+
+
+# --- building the design -----------------------------------------------------------------
+
+
+def build_design(recording, ctx, *, grade_window_m: float | None = None) -> Design:
+    """The recording against the scenario's model (terms with all-zero coefficients left out),
+    its coefficients refitted with physical bounds.
+
+    Raises
+    ------
+    InputError
+        Too few samples, or a recording without power.
+    """
+    samples = recording_samples([recording], ctx, N_BLOCKS, grade_window_m)
+    n = samples.power_W.size
+    if n < 50:
+        raise InputError(f"{recording.source}: {n} samples are too few to diagnose (need >= 50)")
+    model = _baseline_model(ctx)
+    state = samples.state
+    t = recording.t_s - recording.t_s[0]
+    fold = samples.block[:, 1] % N_FOLDS
+    theta = np.clip(model.theta, *_bounds(model.names))
+    lower, upper = _bounds(model.names)
+    sd0 = np.sqrt(np.diag(model.cov)) * PRIOR_SCALE
+    weight = np.where(sd0 > 0, 1.0 / np.where(sd0 > 0, sd0, 1.0) ** 2, 0.0)
+    design = None
+    for _ in range(4):  # the clip mask settles in a few rounds
+        current = model.with_theta(dict(zip(model.names, theta)))
+        cols = np.asarray(current.power_jacobian(state), float)
+        design = Design(samples, current, cols, lower, upper, model.theta.copy(), weight, fold,
+                        t, _airborne(recording), frozenset(recording.frame.columns),
+                        ctx.scenario, ctx.world, recording.frame)
+        new = _fit_rows(design, cols, lower, upper, np.ones(n, bool), cols.shape[1])
+        if np.allclose(new, theta, rtol=1e-6, atol=1e-9):
+            break
+        theta = new
+    base = model.with_theta(dict(zip(model.names, theta)))
+    design.base = base
+    design.columns = np.asarray(base.power_jacobian(state), float)
+    return design
+
+
+def _baseline_model(ctx) -> EnergyModel:
+    """The scenario's model without terms whose coefficients are all 0 (left out)."""
+    model = ctx.model
+    keep = [t for t in model.terms
+            if any(model.coefficient(c) != 0 for c in t.coefficients) or t.id == "regen"]
+    theta = {c: model.coefficient(c) for t in keep for c in t.coefficients}
+    if not keep:
+        raise InputError("the scenario's model has no term with a non-zero coefficient")
+    reduced = model.with_terms(keep, theta)
+    return reduced
+
+
+def _bounds(names) -> tuple[np.ndarray, np.ndarray]:
+    """Physical ranges of lumped coefficients: every one >= 0, a regen efficiency <= 1."""
+    lower = np.zeros(len(names))
+    upper = np.array([1.0 if n == "regen_efficiency" else np.inf for n in names])
+    return lower, upper
+
+
+def _airborne(recording) -> np.ndarray:
+    """Everything but the leading and trailing stationary periods (a flight log starts and
+    ends on the ground), when those last at least LANDED_MIN_S."""
+    v = np.abs(recording.frame["v_mps"].to_numpy(float))
+    t = recording.t_s
+    moving = np.flatnonzero(v > 0.05)
+    out = np.ones(v.size, bool)
+    if moving.size == 0:
+        return out
+    first, last = moving[0], moving[-1]
+    if t[first] - t[0] >= LANDED_MIN_S:
+        out[:first] = False
+    if t[-1] - t[last] >= LANDED_MIN_S:
+        out[last + 1:] = False
+    return out
+
+
+# --- the candidates ----------------------------------------------------------------------
+
+
+def _term_effect(term_id: str):
+    """Effect of a physics term: its ``power_jacobian`` columns at coefficient 0 next to the
+    baseline (so a force term is masked by the baseline's clip, a battery loss scales the
+    baseline's load power)."""
+
+    def effect(d: Design, _resid, _rows) -> Effect:
+        term = make_term(term_id, d.world.map.surface_names)
+        model = d.base.with_terms([*d.base.terms, term], dict.fromkeys(term.coefficients, 0.0))
+        jac = np.asarray(model.power_jacobian(d.state), float)[:, len(d.base.names):]
+        if term_id == "hover":  # aloft only: a landed drone idles
+            jac = jac * d.airborne[:, None]
+        lo, hi = _bounds(term.coefficients)
+        return Effect(jac, term.coefficients, lo, hi)
+
+    return effect
+
+
+def _surface_effect(d: Design, _resid, _rows) -> Effect:
+    """Per-surface change of the rolling coefficient: ``rolling_kg_<s> - rolling_kg`` on the
+    samples on surface s (the baseline's one coefficient covers every surface)."""
+    rolling = _rolling_column(d)
+    code = np.broadcast_to(np.asarray(d.state.surface_code), (d.n,))
+    names = _surfaces_seen(d)
+    cols = np.stack([rolling * (code == d.world.map.surface_names.index(s)) for s in names], 1)
+    base = d.base.coefficient("rolling_kg")
+    return Effect(cols, tuple(f"delta_rolling_kg_{s}" for s in names),
+                  np.full(len(names), -base), np.full(len(names), np.inf))
+
+
+def _rolling_column(d: Design) -> np.ndarray:
+    return d.columns[:, d.base.names.index("rolling_kg")]
+
+
+def _surfaces_seen(d: Design, share: float = 0.05) -> list[str]:
+    code = np.broadcast_to(np.asarray(d.state.surface_code), (d.n,))
+    moving = np.asarray(d.state.speed_mps) > 0
+    return [s for i, s in enumerate(d.world.map.surface_names)
+            if np.count_nonzero((code == i) & moving) >= share * max(1, moving.sum())]
+
+
+def _mass_per_kg_W(d: Design) -> np.ndarray:
+    """Battery power per kg of extra moving mass at the baseline coefficients [W/kg]: the
+    mass-proportional force terms scale with mass, a hover power with mass^1.5 (momentum
+    theory, as the simulator's payload)."""
+    mass = d.scenario.robot.mass_kg
+    theta = d.base.theta
+    per_kg = np.zeros(d.n)
+    for i, name in enumerate(d.base.names):
+        if is_mass_coefficient(name):
+            per_kg += d.columns[:, i] * theta[i] / mass
+    if "hover_W" in d.base.names:
+        per_kg += 1.5 * d.base.coefficient("hover_W") / mass * d.airborne
+    return per_kg
+
+
+def _payload_effect(d: Design, resid, rows) -> Effect:
+    """A mass change at an unknown time: ``payload_kg * per_kg(t) * [t >= t0]``; t0 is the
+    training rows' least-squares change time (a scan over every sample, by cumulative sums)."""
+    g = _mass_per_kg_W(d)
+    r = np.where(rows, resid, 0.0)
+    gr = np.where(rows, g, 0.0)
+    # sum over t >= t0 of r g and g^2, for every t0 at once
+    rg = np.cumsum((r * gr)[::-1])[::-1]
+    gg = np.cumsum((gr * gr)[::-1])[::-1]
+    valid = (d.t_s >= d.t_s[-1] * 0.05) & (d.t_s <= d.t_s[-1] * 0.95) & (gg > 0)
+    gain = np.where(valid, rg**2 / np.where(gg > 0, gg, 1.0), -np.inf)
+    k = int(np.argmax(gain))
+    t0 = float(d.t_s[k])
+    # the change time's uncertainty: the span of times whose fit is within one (inflated)
+    # standard deviation of the best, from the profile of the residual sum of squares
+    s2 = float(np.mean(r[rows] ** 2)) * 3.0
+    near = valid & (gain >= gain[k] - s2)
+    sd = float(np.std(d.t_s[near])) if near.any() else 0.0
+    col = (g * (d.t_s >= t0))[:, None]
+    return Effect(col, ("payload_kg",), np.array([-np.inf]), np.array([np.inf]),
+                  {"payload_from_s": (t0, sd)})
+
+
+def _wind_effect(d: Design, resid, rows) -> Effect:
+    """An unreported wind: the drag term evaluated under a wind vector w, minus the
+    baseline's (no wind). w is fitted to the training rows' residual by Gauss-Newton; the
+    column's coefficient (the drag's share, ideally 1) is free but positive."""
+    from scipy.optimize import least_squares
+
+    drag_i = d.base.names.index("drag_kg_per_m")
+    c = d.base.theta[drag_i]
+    base_drag = d.columns[:, drag_i] * c
+    speed = np.asarray(d.state.speed_mps)
+    moving = (speed > 0.1) & rows
+
+    def drag_with(w):
+        s = d.state.with_(wind_x_mps=w[0] + 0.0 * speed, wind_y_mps=w[1] + 0.0 * speed)
+        ax, ay = s.air_velocity()
+        phi = np.sqrt(ax * ax + ay * ay) * (ax * s.dir_x + ay * s.dir_y)
+        return c * phi * speed
+
+    def fun(w):
+        return (drag_with(w) - base_drag - resid)[moving]
+
+    sol = least_squares(fun, np.zeros(2), method="lm", x_scale=1.0)
+    jac = sol.jac
+    s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, _sub(d, moving), 30.0))
+    cov = np.linalg.pinv(jac.T @ jac) * s2
+    speed_mps, from_deg = wind_speed_and_from(sol.x[0], sol.x[1])
+    # delta method for speed and direction
+    wx, wy = sol.x
+    r2 = max(wx * wx + wy * wy, 1e-12)
+    g_speed = np.array([wx, wy]) / np.sqrt(r2)
+    g_dir = np.degrees(np.array([-wy, wx]) / r2)
+    extra = {"wind_x_mps": (float(wx), float(np.sqrt(cov[0, 0]))),
+             "wind_y_mps": (float(wy), float(np.sqrt(cov[1, 1]))),
+             "wind_speed_mps": (float(speed_mps), float(np.sqrt(g_speed @ cov @ g_speed))),
+             "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir)))}
+    col = (drag_with(sol.x) - base_drag)[:, None]
+    return Effect(col, ("wind_share",), np.array([0.0]), np.array([np.inf]), extra)
+
+
+def _sub(d: Design, mask) -> Samples:
+    return d.samples.subset(mask)
+
+
+def _applies_term(term_id: str, needs: Callable | None = None):
+    def applies(d: Design):
+        if term_id in d.base.term_ids:
+            return "in the model"
+        if term_id == "turning_torque" and "turning" in d.base.term_ids:
+            return "turning is in the model"
+        term = TERMS.get(term_id)
+        for ch in (term.channels if term else ()):
+            if ch.name not in d.columns_of and ch.name != "elapsed_s":
+                return f"the recording has no {ch.name} column"
+        return needs(d) if needs else None
+
+    return applies
+
+
+def _varies(column: str, spread: float):
+    def check(d: Design):
+        values = d.frame[column].to_numpy(float) if column in d.columns_of else None
+        if values is None:
+            return f"the recording has no {column} column"
+        if np.nanmax(values) - np.nanmin(values) < spread:
+            return f"{column} varies by less than {spread:g}"
+        return None
+
+    return check
+
+
+def _needs_hills(d: Design):
+    return None if np.ptp(np.asarray(d.state.sin_t)) > 0.01 else "the recording is flat"
+
+
+def _needs_landed(d: Design):
+    if d.scenario.robot.kind != "aerial":
+        return "not an aerial robot"
+    return None if (~d.airborne).mean() > 0.02 else "no landed period to tell hover from idle"
+
+
+def _needs_cold_cells(d: Design):
+    temps = d.frame["battery_C"].to_numpy(float)
+    return None if np.nanmin(temps) < 20.0 else "the cells never ran cold (< 20 C)"
+
+
+def _needs_surfaces(d: Design):
+    if "rolling_kg" not in d.base.names:
+        return "no rolling term to differ by surface"
+    if not _surfaces_seen(d):
+        return "the recording spends no time on a map surface"
+    return None
+
+
+def _needs_mass(d: Design):
+    return None if np.any(_mass_per_kg_W(d) > 0) else "no mass-dependent power in the model"
+
+
+def _needs_wind(d: Design):
+    if {"wind_mps", "wind_from_deg"} <= d.columns_of:
+        return "the wind is recorded"
+    if "drag_kg_per_m" not in d.base.names or d.base.coefficient("drag_kg_per_m") <= 0:
+        return "no drag term for a wind to act on"
+    if not {"x_m", "y_m"} <= d.columns_of:
+        return "no positions: the heading relative to a wind is unknown"
+    return None
+
+
+def _needs_braking(d: Design):
+    force = np.asarray(d.base.traction_force_N(d.state))
+    return None if np.any(force < 0) else "the traction force never goes negative"
+
+
+def _feature(values_of: Callable, label: str):
+    return lambda d: (np.broadcast_to(np.asarray(values_of(d), float), (d.n,)), label)
+
+
+def _column(name: str):
+    return lambda d: d.frame[name].to_numpy(float)
+
+
+_NEEDS: dict[str, Callable] = {
+    "sensor_rate": _varies("sensor_rate_Hz", 1.0),
+    "hover": _needs_landed,
+    "surface_rolling": _needs_surfaces,
+    "grade": _needs_hills,
+    "regen": _needs_braking,
+    "hvac_ambient": _varies("ambient_C", 3.0),
+    "battery_temperature": _needs_cold_cells,
+}
+_FEATURES: dict[str, tuple[Callable, str]] = {
+    "ancillary": (lambda d: d.t_s, "time since start [s]"),
+    "sensor_rate": (_column("sensor_rate_Hz"), "sensor rate [Hz]"),
+    "hover": (lambda d: d.airborne, "airborne [-]"),
+    "rolling": (lambda d: d.state.speed_mps, "speed [m/s]"),
+    "surface_rolling": (lambda d: d.state.surface_code, "surface code (-1: default ground)"),
+    "aero_drag": (lambda d: d.state.speed_mps, "speed [m/s]"),
+    "grade": (lambda d: d.state.sin_t, "grade sin(theta) [-]"),
+    "inertia": (lambda d: d.state.accel_mps2, "acceleration [m/s^2]"),
+    "regen": (lambda d: np.asarray(d.base.traction_force_N(d.state)), "lumped traction force [N]"),
+    "turning": (lambda d: np.abs(d.state.yaw_rate_radps), "|yaw rate| [rad/s]"),
+    "turning_torque": (lambda d: np.abs(d.state.yaw_rate_radps), "|yaw rate| [rad/s]"),
+    "hvac": (_column("hvac_W"), "HVAC power [W]"),
+    "hvac_ambient": (_column("ambient_C"), "ambient temperature [C]"),
+    "heater": (_column("heater_request_W"), "requested heating [W]"),
+    "battery_resistance": (lambda d: d.base.load_power_W(d.state), "load power [W]"),
+    "battery_temperature": (_column("battery_C"), "battery temperature [C]"),
+    "drift": (lambda d: d.t_s, "time since start [s]"),
+    "payload": (lambda d: d.t_s, "time since start [s]"),
+    "wind": (lambda d: np.degrees(np.arctan2(d.state.dir_x, d.state.dir_y)) % 360.0,
+             "heading [deg from north]"),
+}
+
+
+def candidates() -> list[Candidate]:
+    """Every candidate diagnosis tries (module docstring)."""
+    out = [Candidate(t, _applies_term(t, _NEEDS.get(t)),
+                     _surface_effect if t == "surface_rolling" else _term_effect(t),
+                     _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]
+    out.append(Candidate("payload", _needs_mass, _payload_effect, _feature(*_FEATURES["payload"])))
+    out.append(Candidate("wind", _needs_wind, _wind_effect, _feature(*_FEATURES["wind"])))
+    return out
+
+
+# --- selection -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One candidate judged in one round: held-out RMSE gain, smallest t value, BIC change."""
+
+    id: str
+    gain: float
+    t_min: float
+    bic_change: float
+    accepted: bool
+    reason: str
+
+
+def select(d: Design, pool: list[Candidate]) -> tuple[list[Candidate], list[Fit], list[Trial]]:
+    """Forward selection with a backward pass (module docstring); returns the chosen
+    candidates, the fit after each acceptance (index 0: baseline) and every trial."""
+    chosen: list[Candidate] = []
+    fits = [fit_design(d, [])]
+    trials: list[Trial] = []
+    open_pool = [c for c in pool if c.applies(d) is None]
+    while open_pool:
+        current = fits[-1]
+        scored = []
+        for cand in open_pool:
+            fit = fit_design(d, [*chosen, cand])
+            scored.append((cand, fit, _judge(cand, fit, current)))
+        scored.sort(key=lambda s: -s[2].gain)
+        trials += [s[2] for s in scored]
+        best = next((s for s in scored if s[2].accepted), None)
+        if best is None:
+            break
+        chosen.append(best[0])
+        fits.append(best[1])
+        open_pool = [c for c in open_pool if c is not best[0] and not _same_spec(c, best[0])]
+    return _backward(d, chosen, fits), fits, trials
+
+
+def _same_spec(a: Candidate, b: Candidate) -> bool:
+    return a.spec_id == b.spec_id and a.id != "surface_rolling" and b.id != "surface_rolling"
+
+
+def _judge(cand: Candidate, fit: Fit, current: Fit) -> Trial:
+    gain = 1.0 - fit.cv_rmse_W / current.cv_rmse_W if current.cv_rmse_W > 0 else 0.0
+    own = [i for i, nm in enumerate(fit.names) if nm.startswith(f"{cand.id}.")]
+    t = np.abs(fit.theta[own]) / np.where(fit.sd[own] > 0, fit.sd[own], np.inf)
+    t_min = float(np.min(t)) if own else 0.0
+    bic_change = fit.bic(current.tau) - current.bic(current.tau)
+    reason = ("" if gain >= MIN_GAIN and t_min >= MIN_T and bic_change < 0 else
+              f"held-out gain {100 * gain:.1f} % (need {100 * MIN_GAIN:.0f} %)" if gain < MIN_GAIN
+              else f"t = {t_min:.1f} (need {MIN_T:g})" if t_min < MIN_T
+              else f"BIC +{bic_change:.1f}")
+    return Trial(cand.id, float(gain), t_min, float(bic_change), not reason, reason)
+
+
+def _backward(d: Design, chosen: list[Candidate], fits: list[Fit]) -> list[Candidate]:
+    """Drop a chosen term the others make redundant (its removal costs < MIN_GAIN / 2)."""
+    if len(chosen) < 2:
+        return chosen
+    full = fit_design(d, chosen)
+    for cand in list(chosen):
+        rest = [c for c in chosen if c is not cand]
+        reduced = fit_design(d, rest)
+        if reduced.cv_rmse_W <= full.cv_rmse_W * (1 + MIN_GAIN / 2):
+            chosen = rest
+            full = reduced
+    return chosen
+
+
+# --- locating the mismatch -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """A time window where the baseline's residual departs from zero (SPEC §6).
+
+    Attributes
+    ----------
+    t_start_s, t_end_s : the window [s]
+    mean_residual_W : mean recorded minus predicted power in it [W]
+    where : plain-language condition that sets the window apart
+    """
+
+    t_start_s: float
+    t_end_s: float
+    mean_residual_W: float
+    where: str
+
+
+def locate(d: Design, resid: np.ndarray, tau: float, max_windows: int = 8) -> list[Mismatch]:
+    """Windows of significant residual: change points of the residual's 1 s means
+    (``ruptures`` PELT, least-squares cost, penalty ``3 s2 tau_1s log n``), kept where the
+    window's mean is more than 3 standard errors (autocorrelation-inflated) from zero."""
+    import ruptures
+
+    edges, means, counts = _per_second(d.t_s, resid)
+    if means.size < 20:
+        return []
+    var = float(np.var(means))
+    tau_1s = max(1.0, tau * float(np.median(counts)) ** -1)
+    if var <= 0:
+        return []
+    pen = 3.0 * var * tau_1s * np.log(means.size)
+    breaks = ruptures.Pelt(model="l2", min_size=10, jump=2).fit(means[:, None]).predict(pen=pen)
+    out = []
+    lo = 0
+    for hi in breaks:
+        seg = means[lo:hi]
+        se = np.sqrt(var * tau_1s / seg.size)
+        if abs(seg.mean()) > 3.0 * se and abs(seg.mean()) > 0.02 * np.mean(np.abs(d.y)):
+            t0, t1 = float(edges[lo]), float(edges[hi])
+            inside = (d.t_s >= t0) & (d.t_s < t1)
+            out.append(Mismatch(t0, t1, float(np.mean(resid[inside])), describe(d, inside)))
+        lo = hi
+    out.sort(key=lambda m: -abs(m.mean_residual_W) * (m.t_end_s - m.t_start_s))
+    return sorted(out[:max_windows], key=lambda m: m.t_start_s)
+
+
+def locate_by_condition(d: Design, resid: np.ndarray, conditions: list[dict],
+                        most: int = 3) -> list[Mismatch]:
+    """Mismatches tied to an operating condition rather than a time window (a turn, a hill,
+    a cold battery recur through the run): for each significant condition (strongest rank
+    correlation first), the samples in its quartile with the largest mean residual, reported
+    over the span they occur in."""
+    out = []
+    values = _condition_values(d)
+    flagged = sorted((c for c in conditions if c["significant"] and c["condition"] != "time"),
+                     key=lambda c: -abs(c["spearman_rho"]))
+    for cond in flagged[:most]:
+        arr = values[cond["condition"]]
+        _values, label, unit = CONDITIONS[cond["condition"]]
+        upper, lower = quarters(arr)
+        if not (upper.any() and lower.any()):
+            continue
+        pick_upper = abs(np.mean(resid[upper])) >= abs(np.mean(resid[lower]))
+        hit = upper if pick_upper else lower
+        bound = arr[upper].min() if pick_upper else arr[lower].max()
+        t = d.t_s[hit]
+        where = f"while {label} {'>=' if pick_upper else '<='} {bound:.3g}{' ' + unit if unit else ''}"
+        out.append(Mismatch(float(t[0]), float(t[-1]), float(np.mean(resid[hit])), where))
+    return out
+
+
+def quarters(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Samples in the top and bottom quarter of ``values``. When most samples share one
+    value (a yaw rate of 0 on straight runs) that value is one side and the rest the other,
+    so neither side is empty while the values differ."""
+    lo_q, hi_q = np.percentile(values, [25, 75])
+    if lo_q < hi_q:
+        return values >= hi_q, values <= lo_q
+    if np.any(values > hi_q):
+        return values > hi_q, values <= lo_q
+    return values >= hi_q, values < lo_q
+
+
+def _per_second(t_s: np.ndarray, values: np.ndarray):
+    """Means of ``values`` over whole seconds: (second edges, means, samples per second)."""
+    sec = np.floor(t_s).astype(int)
+    sec -= sec[0]
+    counts = np.bincount(sec)
+    sums = np.bincount(sec, values)
+    keep = counts > 0
+    edges = np.r_[np.flatnonzero(keep), np.flatnonzero(keep)[-1] + 1].astype(float) + t_s[0] * 0
+    return edges, sums[keep] / counts[keep], counts[keep]
+
+
+CONDITIONS: dict[str, tuple[Callable, str, str]] = {
+    # name -> (values of the design, label in a sentence, unit)
+    "speed": (lambda d: d.state.speed_mps, "speed", "m/s"),
+    "acceleration": (lambda d: np.abs(d.state.accel_mps2), "|acceleration|", "m/s^2"),
+    "grade": (lambda d: d.state.sin_t, "grade", ""),
+    "yaw_rate": (lambda d: np.abs(d.state.yaw_rate_radps), "|yaw rate|", "rad/s"),
+    "heading": (lambda d: np.degrees(np.arctan2(d.state.dir_x, d.state.dir_y)) % 360.0,
+                "heading", "deg"),
+    "ambient_C": (lambda d: d.frame["ambient_C"].to_numpy(float), "ambient temperature", "C"),
+    "battery_C": (lambda d: d.frame["battery_C"].to_numpy(float), "battery temperature", "C"),
+    "payload_kg": (lambda d: d.frame["payload_kg"].to_numpy(float), "payload", "kg"),
+    "sensor_rate_Hz": (lambda d: d.frame["sensor_rate_Hz"].to_numpy(float), "sensor rate", "Hz"),
+    "time": (lambda d: d.t_s, "time since start", "s"),
+}
+"""Operating conditions the residual is examined against (SPEC §3 columns when present)."""
+
+
+def _condition_values(d: Design) -> dict[str, np.ndarray]:
+    out = {}
+    for name, (values, _label, _unit) in CONDITIONS.items():
+        if name in ("ambient_C", "battery_C", "payload_kg", "sensor_rate_Hz") and \
+                name not in d.columns_of:
+            continue
+        arr = np.broadcast_to(np.asarray(values(d), float), (d.n,))
+        if np.all(np.isfinite(arr)) and np.ptp(arr) > 0:
+            out[name] = arr
+    return out
+
+
+def describe(d: Design, inside: np.ndarray) -> str:
+    """The condition that best sets ``inside`` apart: a surface it is on, or a feature
+    whose values differ most (standardised mean difference), as "while X > q"."""
+    surface = _surface_phrase(d, inside)
+    best, best_score = None, 0.5
+    for name, arr in _condition_values(d).items():
+        if name == "time" or inside.all() or not inside.any():
+            continue
+        sd = float(np.std(arr))
+        score = abs(arr[inside].mean() - arr[~inside].mean()) / sd if sd > 0 else 0.0
+        if score > best_score:
+            best, best_score = name, score
+    parts = []
+    if best is not None:
+        arr = _condition_values(d)[best]
+        _values, label, unit = CONDITIONS[best]
+        higher = arr[inside].mean() > arr[~inside].mean()
+        q = np.percentile(arr[inside], 25 if higher else 75)
+        parts.append(f"while {label} {'>' if higher else '<'} {q:.3g}{' ' + unit if unit else ''}")
+    if surface:
+        parts.append(surface)
+    if not parts:
+        t = d.t_s[inside]
+        return (f"from t = {t[0]:.0f} s to {t[-1]:.0f} s, no operating condition stands apart "
+                "(a change in time)")
+    return ", ".join(parts)
+
+
+def _surface_phrase(d: Design, inside: np.ndarray) -> str:
+    code = np.broadcast_to(np.asarray(d.state.surface_code), (d.n,))
+    names = d.world.map.surface_names
+    for i, name in enumerate(names):
+        share_in = np.mean(code[inside] == i) if inside.any() else 0.0
+        share_out = np.mean(code[~inside] == i) if (~inside).any() else 0.0
+        if share_in > 0.6 and share_in > 2 * share_out:
+            return f"on the map's '{name}' surface"
+    return ""
+
+
+def residual_by_condition(d: Design, resid: np.ndarray, tau: float) -> list[dict]:
+    """Residual against each operating condition: rank correlation and the mean residual in
+    the condition's quartiles; flagged when |rho| exceeds 4 standard errors under
+    autocorrelation (``sqrt(tau / n)``)."""
+    from scipy.stats import spearmanr
+
+    out = []
+    for name, arr in _condition_values(d).items():
+        rho = float(spearmanr(arr, resid).statistic)
+        edges = np.unique(np.percentile(arr, [0, 25, 50, 75, 100]))
+        which = np.clip(np.searchsorted(edges, arr, side="right") - 1, 0, max(0, edges.size - 2))
+        means = [float(np.mean(resid[which == k])) for k in range(max(1, edges.size - 1))
+                 if np.any(which == k)]
+        out.append({"condition": name, "spearman_rho": rho,
+                    "significant": bool(abs(rho) > 4.0 * np.sqrt(tau / d.n)),
+                    "quartile_mean_residual_W": means})
+    return out
+
+
+def residual_by_surface(d: Design, resid: np.ndarray) -> list[dict]:
+    """Mean residual on each map surface seen and on default ground (space)."""
+    code = np.broadcast_to(np.asarray(d.state.surface_code), (d.n,))
+    names = [*d.world.map.surface_names]
+    out = []
+    for i in np.unique(code):
+        hit = code == i
+        label = names[i] if i >= 0 else (getattr(d.world, "default_surface_name", None)
+                                         or "default ground")
+        out.append({"surface": label, "share": float(hit.mean()),
+                    "mean_residual_W": float(np.mean(resid[hit]))})
+    return out
+
+
+# --- the whole diagnosis ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A missing term, named and fitted (SPEC §6 ``missing_physics`` entry)."""
+
+    term: str
+    variant: str | None
+    params: dict
+    stderr: dict
+    explains_pct: float
+    evidence: str
+    feature_label: str
+
+    def to_dict(self) -> dict:
+        out = {"term": self.term, "explains_pct": self.explains_pct, "params": self.params,
+               "stderr": self.stderr, "evidence": self.evidence}
+        if self.variant:
+            out["variant"] = self.variant
+        return out
+
+
+@dataclass
+class Diagnosis:
+    """What ``diagnose`` found (``to_dict`` is the SPEC §6 JSON)."""
+
+    design: Design
+    baseline: Fit
+    improved: Fit
+    chosen: list
+    findings: list
+    mismatches: list
+    conditions: list
+    surfaces: list
+    trials: list
+    verdict: str
+    evidence: str
+    model: EnergyModel = None
+    scenario_changes: dict = field(default_factory=dict)
+
+    def summary(self, fit: Fit, terms) -> dict:
+        return {"terms": list(terms), "rmse_W": fit.rmse_W, "holdout_rmse_W": fit.cv_rmse_W,
+                "energy_error_pct": self.energy_error_pct(fit)}
+
+    def energy_error_pct(self, fit: Fit) -> float:
+        """Whole-run energy error of the held-out predictions, % of the recorded energy."""
+        dt = self.design.samples.dt_s
+        rec = float(np.sum(self.design.y * dt))
+        pred = float(np.sum(fit.held_out_W * dt))
+        return 100.0 * (pred - rec) / rec if rec else float("nan")
+
+    def contributions_W(self) -> dict[str, np.ndarray]:
+        """Each found term's fitted power along the recording, by candidate id [W]."""
+        x, _lo, _hi, names, _extra = _stack(self.design, self.chosen,
+                                            np.ones(self.design.n, bool))
+        out = {}
+        for cand in self.chosen:
+            own = [i for i, nm in enumerate(names) if nm.startswith(f"{cand.id}.")]
+            out[cand.id] = x[:, own] @ self.improved.theta[own]
+        return out
+
+    def to_dict(self) -> dict:
+        base_terms = [spec_id(t) for t in self.design.base.term_ids]
+        added = [f.term for f in self.findings]
+        return {
+            "verdict": self.verdict,
+            "evidence": self.evidence,
+            "baseline": self.summary(self.baseline, dict.fromkeys(base_terms)),
+            "mismatches": [m.__dict__ for m in self.mismatches],
+            "missing_physics": [f.to_dict() for f in self.findings],
+            "improved": self.summary(self.improved, dict.fromkeys([*base_terms, *added])),
+            "conditions": self.conditions,
+            "surfaces": self.surfaces,
+            "candidates": [t.__dict__ for t in self.trials],
+            "scenario_changes": self.scenario_changes,
+        }
+
+
+def diagnose(recording, ctx, *, grade_window_m: float | None = None,
+             pool: list[Candidate] | None = None) -> Diagnosis:
+    """Locate the mismatch between a recording and the scenario's model, name the missing
+    physics, fit it, and report the fit before and after (module docstring).
+
+    Parameters
+    ----------
+    recording : a cleaned telemetry Recording (SPEC §3)
+    ctx : the scenario's Context
+    grade_window_m : elevation smoothing window for the grade [m] (None: telemetry default)
+    pool : candidates to try (default ``candidates()``)
+
+    Returns
+    -------
+    Diagnosis
+    """
+    d = build_design(recording, ctx, grade_window_m=grade_window_m)
+    chosen, _fits, trials = select(d, pool or candidates())
+    baseline = fit_design(d, [])
+    improved = fit_design(d, chosen)
+    resid = d.y - baseline.predicted_W
+    findings = [_finding(d, c, chosen, improved, baseline) for c in chosen]
+    conditions = residual_by_condition(d, resid, baseline.tau)
+    result = Diagnosis(
+        design=d, baseline=baseline, improved=improved, chosen=chosen, findings=findings,
+        mismatches=[*locate(d, resid, baseline.tau),
+                    *locate_by_condition(d, resid, conditions)],
+        conditions=conditions,
+        surfaces=residual_by_surface(d, resid), trials=trials,
+        verdict="missing physics found" if findings else "no missing physics found",
+        evidence=_null_evidence(d, baseline, trials) if not findings else
+        "; ".join(f.evidence for f in findings))
+    result.model, result.scenario_changes = improved_model(d, chosen, improved)
+    return result
+
+
+def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -> Finding:
+    own = [i for i, nm in enumerate(improved.names) if nm.startswith(f"{cand.id}.")]
+    params = {improved.names[i].split(".", 1)[1]: float(improved.theta[i]) for i in own}
+    stderr = {improved.names[i].split(".", 1)[1]: float(improved.sd[i]) for i in own}
+    for key, (value, sd) in improved.extra.items():
+        if key.startswith(f"{cand.id}."):
+            params[key.split(".", 1)[1]] = float(value)
+            stderr[key.split(".", 1)[1]] = float(sd)
+    params, stderr = _physical_params(d, cand, params, stderr)
+    without = fit_design(d, [c for c in chosen if c is not cand])
+    ss_base = float(np.sum((d.y - baseline.predicted_W) ** 2))
+    ss_gain = float(np.sum((d.y - without.predicted_W) ** 2)
+                    - np.sum((d.y - improved.predicted_W) ** 2))
+    explains = float(np.clip(100.0 * ss_gain / ss_base, 0.0, 100.0)) if ss_base > 0 else 0.0
+    values, label = cand.feature(d)
+    return Finding(cand.spec_id, cand.id if cand.id != cand.spec_id else None, params, stderr,
+                   explains, _evidence(d, cand, values, label, baseline, without, improved),
+                   label)
+
+
+def _physical_params(d: Design, cand: Candidate, params: dict, stderr: dict):
+    """Report parameters as the scenario knows them: per-surface rolling as the surface's
+    own coefficient, a wind by speed and direction (the fitted share left out)."""
+    if cand.id == "surface_rolling":
+        base = d.base.coefficient("rolling_kg")
+        params = {k.replace("delta_", ""): base + v for k, v in params.items()}
+        stderr = {k.replace("delta_", ""): v for k, v in stderr.items()}
+    if cand.id == "wind":
+        params.pop("wind_share", None)
+        stderr.pop("wind_share", None)
+    return params, stderr
+
+
+def _evidence(d: Design, cand: Candidate, values, label, baseline: Fit, without: Fit,
+              improved: Fit) -> str:
+    """One checkable sentence: the residual where the feature is high vs low, and the
+    held-out RMSE with and without the term."""
+    resid = d.y - baseline.predicted_W
+    arr = np.broadcast_to(np.asarray(values, float), (d.n,))
+    hi, lo = quarters(arr)
+    if not (hi.any() and lo.any()):
+        contrast = ""
+    else:
+        contrast = (f"the baseline's residual averages {np.mean(resid[hi]):+.3g} W in the top "
+                    f"quarter of {label} and {np.mean(resid[lo]):+.3g} W in the bottom quarter; ")
+    return (f"{cand.id}: {contrast}adding it takes the held-out RMSE from "
+            f"{without.cv_rmse_W:.3g} W to {improved.cv_rmse_W:.3g} W")
+
+
+def _null_evidence(d: Design, baseline: Fit, trials: list[Trial]) -> str:
+    best = max(trials, key=lambda t: t.gain, default=None)
+    base = (f"the refitted model leaves a residual of {baseline.rmse_W:.3g} W RMS "
+            f"({100 * baseline.rmse_W / max(np.mean(np.abs(d.y)), 1e-9):.1f} % of the mean "
+            f"power), autocorrelation time {baseline.tau:.0f} samples")
+    if best is None:
+        return base + "; no candidate applies to this recording"
+    return (base + f"; the best candidate, {best.id}, would change the held-out RMSE by "
+            f"{-100 * best.gain:+.1f} % ({best.reason})")
+
+
+# --- the model with the findings ----------------------------------------------------------------
+
+
+def improved_model(d: Design, chosen: list[Candidate], fit: Fit) -> tuple[EnergyModel, dict]:
+    """The baseline's terms plus the found terms, at the joint fit's coefficients, and the
+    scenario values a non-term finding changes (a wind; a payload as the mass now carried).
+
+    Coefficient variances: the joint fit's for fitted ones.
+    """
+    theta = dict(zip(fit.names, fit.theta))
+    sd = dict(zip(fit.names, fit.sd))
+    base_names = d.base.names
+    values = {n: float(theta[n]) for n in base_names}
+    variances = {n: float(sd[n]) ** 2 for n in base_names}
+    terms = list(d.base.terms)
+    changes: dict = {}
+    names = d.world.map.surface_names
+    for cand in chosen:
+        own = {k.split(".", 1)[1]: v for k, v in theta.items() if k.startswith(f"{cand.id}.")}
+        own_sd = {k.split(".", 1)[1]: v for k, v in sd.items() if k.startswith(f"{cand.id}.")}
+        if cand.id == "surface_rolling":
+            seen = [k.removeprefix("delta_rolling_kg_") for k in own]
+            term = make_term("surface_rolling", names)
+            terms.insert([t.id for t in terms].index("rolling") + 1, term)
+            for s in names:
+                key = f"rolling_kg_{s}"
+                delta = own.get(f"delta_rolling_kg_{s}", 0.0) if s in seen else 0.0
+                values[key] = values["rolling_kg"] + delta
+                variances[key] = variances["rolling_kg"] + own_sd.get(f"delta_rolling_kg_{s}",
+                                                                      0.0) ** 2
+        elif cand.id == "payload":
+            ratio = (d.scenario.robot.mass_kg + own["payload_kg"]) / d.scenario.robot.mass_kg
+            for n in base_names:
+                if is_mass_coefficient(n):
+                    values[n] *= ratio
+                    variances[n] *= ratio**2
+            if "hover_W" in values:
+                values["hover_W"] *= ratio**1.5
+            changes["payload_kg"] = own["payload_kg"]
+        elif cand.id == "wind":
+            wx = fit.extra["wind.wind_x_mps"][0]
+            wy = fit.extra["wind.wind_y_mps"][0]
+            speed, from_deg = wind_speed_and_from(wx, wy)
+            changes["environment.wind_speed_mps"] = float(speed)
+            changes["environment.wind_from_deg"] = float(from_deg) % 360.0
+        else:
+            term = make_term(cand.id, names)
+            terms.append(term)
+            for c in term.coefficients:
+                values[c] = float(own[c])
+                variances[c] = float(own_sd[c]) ** 2
+    coeffs = [c for t in terms for c in t.coefficients]
+    for c in coeffs:  # coefficients of a new surface term with no samples: the a priori value
+        if c not in values:
+            values[c] = reference_value(c, d.scenario)
+            variances[c] = prior_variance(values[c], d.scenario.model.prior_relative_stderr)
+    model = EnergyModel(terms, {c: values[c] for c in coeffs},
+                        np.diag([variances[c] for c in coeffs]), omega=d.base.omega,
+                        discrepancy_rel_sd=d.base.discrepancy_rel_sd)
+    return model, changes
