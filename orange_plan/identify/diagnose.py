@@ -25,9 +25,11 @@ best one is accepted only when all of these hold:
 
 * the held-out RMSE falls by at least ``MIN_GAIN`` (a share) over the current model, and
   the held-out error falls on at least ``MIN_FOLDS`` of the ``N_FOLDS`` folds;
-* each of its coefficients is at least ``MIN_T`` standard errors from zero, the standard
+* the fall is at least ``MIN_RMSE_DROP_SHARE`` of the mean |power| (worth a term);
+* its strongest coefficient is at least ``MIN_T`` standard errors from zero, the standard
   errors inflated by the residuals' integrated autocorrelation time
-  (``calibrate.inflation_factor``);
+  (``calibrate.inflation_factor``); a payload's change time is scanned over the run, so its
+  bar is raised by ``sqrt(2 ln n_eff)`` (``SCANNED``);
 * the Bayesian information criterion, with the *effective* number of samples
   ``n / tau``, falls.
 
@@ -74,6 +76,13 @@ MIN_FOLDS = 4
 that is real helps almost everywhere, a fluke in one stretch of the run does not."""
 MIN_T = 4.0
 """Smallest |coefficient| / standard error (autocorrelation-inflated) of a kept term [-]."""
+MIN_RMSE_DROP_SHARE = 0.005
+"""Smallest fall of the held-out RMSE, as a share of the mean |power|, for a term to be worth
+keeping [-]: a perfect model's residual is small, and 2 % of little is nothing."""
+SCANNED = {"payload"}
+"""Candidates whose change time is the best of a scan over the whole run: the largest of many
+nearly independent t statistics is itself large (about sqrt(2 ln n_eff)), so their t must
+exceed MIN_T by that much (the look-elsewhere effect)."""
 N_BLOCKS = 20
 """Equal-time blocks of the recording; fold k holds out blocks k, k + N_FOLDS, ... [-]."""
 N_FOLDS = 5
@@ -645,12 +654,13 @@ def select(d: Design, pool: list[Candidate]) -> tuple[list[Candidate], list[Fit]
     fits = [fit_design(d, [])]
     trials: list[Trial] = []
     open_pool = [c for c in pool if c.applies(d) is None]
+    mean_power = float(np.mean(np.abs(d.y)))
     while open_pool:
         current = fits[-1]
         scored = []
         for cand in open_pool:
             fit = fit_design(d, [*chosen, cand])
-            scored.append((cand, fit, _judge(cand, fit, current)))
+            scored.append((cand, fit, _judge(cand, fit, current, mean_power)))
         scored.sort(key=lambda s: -s[2].gain)
         trials += [s[2] for s in scored]
         best = next((s for s in scored if s[2].accepted), None)
@@ -666,8 +676,11 @@ def _same_spec(a: Candidate, b: Candidate) -> bool:
     return a.spec_id == b.spec_id and a.id != "surface_rolling" and b.id != "surface_rolling"
 
 
-def _judge(cand: Candidate, fit: Fit, current: Fit) -> Trial:
+def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Trial:
     gain = 1.0 - fit.cv_rmse_W / current.cv_rmse_W if current.cv_rmse_W > 0 else 0.0
+    drop_share = (current.cv_rmse_W - fit.cv_rmse_W) / max(mean_power_W, 1e-12)
+    n_eff = fit.predicted_W.size / current.tau
+    need_t = MIN_T + (np.sqrt(2.0 * np.log(max(n_eff, 2.0))) if cand.id in SCANNED else 0.0)
     own = [i for i, nm in enumerate(fit.names) if nm.startswith(f"{cand.id}.")]
     t = np.abs(fit.theta[own]) / np.where(fit.sd[own] > 0, fit.sd[own], np.inf)
     # a term is significant when its strongest coefficient is: hvac's cooling or one surface
@@ -675,11 +688,12 @@ def _judge(cand: Candidate, fit: Fit, current: Fit) -> Trial:
     t_max = float(np.max(t)) if own else 0.0
     bic_change = fit.bic(current.tau) - current.bic(current.tau)
     folds = int(np.count_nonzero(fit.fold_ss < current.fold_ss))
-    reason = ("" if gain >= MIN_GAIN and folds >= MIN_FOLDS and t_max >= MIN_T and bic_change < 0
-              else f"held-out gain {100 * gain:.1f} % (need {100 * MIN_GAIN:.0f} %)" if gain < MIN_GAIN
+    reason = (f"held-out gain {100 * gain:.1f} % (need {100 * MIN_GAIN:.0f} %)" if gain < MIN_GAIN
               else f"better on {folds} of {N_FOLDS} folds (need {MIN_FOLDS})" if folds < MIN_FOLDS
-              else f"t = {t_max:.1f} (need {MIN_T:g})" if t_max < MIN_T
-              else f"BIC +{bic_change:.1f}")
+              else (f"held-out RMSE falls by {100 * drop_share:.2f} % of the mean power (need "
+                    f"{100 * MIN_RMSE_DROP_SHARE:.1f} %)") if drop_share < MIN_RMSE_DROP_SHARE
+              else f"t = {t_max:.1f} (need {need_t:.1f})" if t_max < need_t
+              else f"BIC +{bic_change:.1f}" if bic_change >= 0 else "")
     return Trial(cand.id, float(gain), t_max, float(bic_change), not reason, reason)
 
 
@@ -717,20 +731,25 @@ class Mismatch:
     where: str
 
 
-def locate(d: Design, resid: np.ndarray, tau: float, max_windows: int = 8) -> list[Mismatch]:
+def locate(d: Design, resid: np.ndarray, max_windows: int = 8) -> list[Mismatch]:
     """Windows of significant residual: change points of the residual's 1 s means
-    (``ruptures`` PELT on the least-squares cost, penalty ``3 s2 tau_1s log n``), kept where the
-    window's mean is more than 3 standard errors (autocorrelation-inflated) from zero."""
+    (``ruptures`` PELT on the least-squares cost, penalty ``4 s2 tau log n``), kept where
+    the window's mean is more than 3 standard errors from zero and above 2 % of the mean
+    power. ``s2`` and ``tau`` describe the noise *around* the windows, so they are taken
+    from what a running median leaves (a step must not inflate its own yardstick)."""
     import ruptures
+    from scipy.ndimage import median_filter
 
-    edges, means, counts = _per_second(d.t_s, resid)
+    edges, means, _counts = _per_second(d.t_s, resid)
     if means.size < 20:
         return []
-    var = float(np.var(means))
-    tau_1s = max(1.0, tau * float(np.median(counts)) ** -1)
-    if var <= 0:
+    wiggle = means - median_filter(means, size=31, mode="nearest")
+    s2 = float(np.var(wiggle))
+    if s2 <= 0:
         return []
-    pen = 3.0 * var * tau_1s * np.log(means.size)
+    rho = float(np.clip(np.corrcoef(wiggle[:-1], wiggle[1:])[0, 1], 0.0, 0.95))
+    tau = (1 + rho) / (1 - rho)
+    pen = 4.0 * s2 * tau * np.log(means.size)
     # KernelCPD with a linear kernel is PELT on the least-squares cost, compiled (the pure
     # Python Pelt took 8 s on a 25-minute run)
     breaks = ruptures.KernelCPD(kernel="linear", min_size=10).fit(means[:, None]).predict(pen=pen)
@@ -738,7 +757,7 @@ def locate(d: Design, resid: np.ndarray, tau: float, max_windows: int = 8) -> li
     lo = 0
     for hi in breaks:
         seg = means[lo:hi]
-        se = np.sqrt(var * tau_1s / seg.size)
+        se = np.sqrt(s2 * tau / seg.size)
         if abs(seg.mean()) > 3.0 * se and abs(seg.mean()) > 0.02 * np.mean(np.abs(d.y)):
             t0, t1 = float(edges[lo]), float(edges[hi])
             inside = (d.t_s >= t0) & (d.t_s < t1)
@@ -1001,7 +1020,7 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
     conditions = residual_by_condition(d, resid, baseline.tau)
     result = Diagnosis(
         design=d, baseline=baseline, improved=improved, chosen=chosen, findings=findings,
-        mismatches=[*locate(d, resid, baseline.tau),
+        mismatches=[*locate(d, resid),
                     *locate_by_condition(d, resid, conditions)],
         conditions=conditions,
         surfaces=residual_by_surface(d, resid), trials=trials,

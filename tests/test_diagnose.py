@@ -1,0 +1,213 @@
+"""``identify.diagnose``: locate, name, model, on small simulated recordings whose truth is
+known (the generated concealed-effect suite is tests/test_diagnose_concealed.py)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from planning_worlds import write_world
+from scipy.optimize import lsq_linear
+from scipy.signal import lfilter
+
+from orange_plan.context import load_context
+from orange_plan.identify.diagnose import _solve, diagnose, quarters
+from orange_plan.model_builder import model_with_terms
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import simulate
+from orange_plan.sim.truth import Truth
+from orange_plan.telemetry.recording import recording_from_frame
+
+RATE_HZ = 5.0
+ZIGZAG_XY_M = np.array([[2, 2], [55, 2], [55, 10], [5, 10], [5, 18], [55, 18], [55, 26],
+                        [5, 26], [5, 34], [55, 34], [30, 20], [2, 2]], float)
+
+
+@pytest.fixture(scope="module")
+def ctx(tmp_path_factory):
+    """A 60 m x 40 m flat field; the scenario has no turning losses."""
+    return load_context(write_world(tmp_path_factory.mktemp("diag"), width_m=60.0, height_m=40.0,
+                                    rated_energy_Wh=500.0, name="field"))
+
+
+def drive(ctx, model=None, truth=None, seed=0, laps=2, disturbance_sd_W=0.4):
+    """A recording of ``laps`` zigzags under ``model`` (default the scenario's), with white
+    noise and an AR(1) disturbance (correlation time 8 s) on the recorded power."""
+    xy = np.vstack([ZIGZAG_XY_M] + [ZIGZAG_XY_M[1:]] * (laps - 1))
+    route = Route(xy, np.full(len(xy), 1.0), "zigzag")
+    sim_ctx = ctx if model is None else replace(ctx, model=model)
+    frame = simulate(sim_ctx, route, truth or Truth(power_std_W=0.3), seed=seed,
+                     sample_rate_Hz=RATE_HZ).frame.drop(columns=["payload_kg", "surface"])
+    rng = np.random.default_rng(seed + 1000)
+    phi = np.exp(-1.0 / (8.0 * RATE_HZ))
+    ar = lfilter([1.0], [1.0, -phi], rng.normal(0, disturbance_sd_W * np.sqrt(1 - phi**2),
+                                                len(frame)))
+    frame["power_W"] = frame["power_W"] + ar
+    return frame
+
+
+def with_turning(ctx, turn_J_per_rad: float):
+    return model_with_terms(ctx, [*ctx.model.term_ids, "turning"]).with_theta(
+        {"turn_J_per_rad": turn_J_per_rad})
+
+
+# --- naming and fitting ---------------------------------------------------------------------
+
+
+def test_left_out_turning_is_found_fitted_and_explains_the_residual(ctx):
+    frame = drive(ctx, with_turning(ctx, 12.0), seed=3)
+    result = diagnose(recording_from_frame(frame), ctx)
+    assert [f.term for f in result.findings] == ["turning"]
+    found = result.findings[0]
+    value, sd = found.params["turn_J_per_rad"], found.stderr["turn_J_per_rad"]
+    assert abs(value - 12.0) <= 3 * sd + 0.02 * 12.0, (value, sd)
+    assert found.explains_pct > 50
+    assert result.improved.cv_rmse_W < 0.8 * result.baseline.cv_rmse_W
+    assert "turn" in found.evidence and "held-out RMSE" in found.evidence
+
+
+def test_nothing_missing_is_said_explicitly_with_evidence(ctx):
+    result = diagnose(recording_from_frame(drive(ctx, seed=4)), ctx)
+    out = result.to_dict()
+    assert out["verdict"] == "no missing physics found"
+    assert out["missing_physics"] == []
+    assert "best candidate" in out["evidence"] and "held-out RMSE" in out["evidence"]
+    assert out["improved"]["rmse_W"] == out["baseline"]["rmse_W"]
+
+
+def test_a_mis_set_coefficient_is_refitted_not_blamed_on_a_new_term(ctx):
+    wrong = ctx.model.with_theta({"ancillary_W": 1.4 * ctx.model.coefficient("ancillary_W"),
+                                  "rolling_kg": 0.7 * ctx.model.coefficient("rolling_kg")})
+    result = diagnose(recording_from_frame(drive(ctx, wrong, seed=5)), ctx)
+    assert result.findings == []
+    assert result.design.base.coefficient("ancillary_W") == pytest.approx(
+        wrong.coefficient("ancillary_W"), rel=0.05)
+
+
+def test_a_column_that_carries_nothing_adds_no_term(ctx):
+    """A temperature column unrelated to the power (a wrong sensor) gives no hvac term."""
+    frame = drive(ctx, seed=6)
+    rng = np.random.default_rng(6)
+    frame["ambient_C"] = 15 + np.cumsum(rng.normal(0, 0.05, len(frame)))
+    frame["battery_C"] = 10 + np.cumsum(rng.normal(0, 0.05, len(frame)))
+    result = diagnose(recording_from_frame(frame), ctx)
+    assert result.findings == []
+    tried = {t.id for t in result.trials}
+    assert {"hvac_ambient", "battery_temperature"} <= tried  # they were considered
+
+
+# --- locating ----------------------------------------------------------------------------------
+
+
+def test_a_time_localised_excess_is_located_in_its_window(ctx):
+    frame = drive(ctx, seed=7)
+    t = frame["t_s"].to_numpy()
+    step = (t >= 100.0) & (t < 180.0)
+    frame.loc[step, "power_W"] += 6.0
+    result = diagnose(recording_from_frame(frame), ctx)
+    hit = [m for m in result.mismatches if m.t_start_s < 180 and m.t_end_s > 100
+           and m.t_end_s - m.t_start_s < 200]
+    assert hit, result.mismatches
+    best = max(hit, key=lambda m: min(m.t_end_s, 180) - max(m.t_start_s, 100))
+    assert best.t_start_s == pytest.approx(100, abs=10) and best.t_end_s == pytest.approx(180, abs=10)
+    assert best.mean_residual_W > 3.0
+    assert best.where
+
+
+def test_quarters_split_a_feature_that_is_mostly_zero():
+    yaw = np.r_[np.zeros(90), np.linspace(0.2, 1.0, 10)]
+    upper, lower = quarters(yaw)
+    assert upper.sum() == 10 and lower.sum() == 90
+    upper, lower = quarters(np.arange(100.0))
+    assert upper.sum() == 25 and lower.sum() == 25
+
+
+# --- the bounded solve ---------------------------------------------------------------------------
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), k=st.integers(1, 6))
+def test_bounded_solve_from_normal_equations_matches_direct_least_squares(seed, k):
+    """``_solve`` works on the k x k normal equations (to be fast on long recordings); it must
+    give the bounded least-squares answer of the full n x k problem (scipy, independently)."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(200, k)) * rng.uniform(0.01, 100, k)
+    y = x @ rng.normal(size=k) + rng.normal(size=200)
+    lower = np.where(rng.random(k) < 0.6, 0.0, -np.inf)
+    upper = np.where(rng.random(k) < 0.2, 0.5, np.inf)
+    upper = np.maximum(upper, lower + 0.1)
+    ours = _solve(x.T @ x, x.T @ y, lower, upper)
+    ref = lsq_linear(x, y, bounds=(lower, upper), method="bvls").x
+    assert np.all(ours >= lower - 1e-9) and np.all(ours <= upper + 1e-9)
+    cost = lambda th: float(np.sum((x @ th - y) ** 2))  # noqa: E731
+    assert cost(ours) <= cost(ref) * (1 + 1e-6) + 1e-9
+
+
+@settings(max_examples=4, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_a_recording_of_the_model_itself_never_gets_a_new_term(ctx, seed):
+    """Invariant: with nothing left out, whatever the noise draw, nothing is named (a named
+    term must be physics the recording holds, not a fluke of the noise)."""
+    result = diagnose(recording_from_frame(drive(ctx, seed=seed, laps=1,
+                                                 disturbance_sd_W=1.0)), ctx)
+    assert result.findings == [], [f.to_dict() for f in result.findings]
+
+
+# --- the command ---------------------------------------------------------------------------------
+
+
+def run_cli(*args):
+    from typer.testing import CliRunner
+
+    from orange_plan.cli import _register_commands, app
+
+    _register_commands()
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_cli_json_follows_spec_6_and_o_carries_the_term_into_predict(ctx, tmp_path):
+    rec = tmp_path / "turns.csv"
+    drive(ctx, with_turning(ctx, 12.0), seed=8).to_csv(rec, index=False)
+    out_toml = tmp_path / "with_turning.toml"
+    res = run_cli("diagnose", rec, "--scenario", ctx.scenario.path, "-o", out_toml,
+                  "--png", tmp_path / "d.png", "--json")
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert set(report["baseline"]) >= {"terms", "rmse_W", "energy_error_pct"}
+    assert set(report["improved"]) >= {"terms", "rmse_W", "holdout_rmse_W", "energy_error_pct"}
+    for m in report["mismatches"]:
+        assert set(m) == {"t_start_s", "t_end_s", "mean_residual_W", "where"}
+    (found,) = report["missing_physics"]
+    assert set(found) >= {"term", "explains_pct", "params", "evidence"}
+    assert found["term"] == "turning" and "turning" in report["improved"]["terms"]
+    assert (tmp_path / "d.png").stat().st_size > 10_000
+    before = run_cli("predict", rec, "--scenario", ctx.scenario.path, "--json")
+    after = run_cli("predict", rec, "--scenario", out_toml, "--json")
+    rmse = [json.loads(r.stdout)["rmse_W"] for r in (before, after)]
+    assert rmse[1] < 0.7 * rmse[0]
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    ("t_s,v_mps\n0,1\n1,1\n", "power"),
+    ("not a table at all", ""),
+])
+def test_cli_refuses_malformed_input_in_one_line(ctx, tmp_path, content, message):
+    rec = tmp_path / "bad.csv"
+    rec.write_text(content, encoding="utf-8")
+    res = run_cli("diagnose", rec, "--scenario", ctx.scenario.path)
+    assert res.exit_code == 2
+    lines = [ln for ln in res.stderr.strip().splitlines() if ln]
+    assert len(lines) == 1 and message in lines[0].lower()
+
+
+def test_cli_refuses_a_missing_scenario_and_a_bad_output(ctx, tmp_path):
+    rec = tmp_path / "r.csv"
+    drive(ctx, seed=9, laps=1).to_csv(rec, index=False)
+    res = run_cli("diagnose", rec, "--scenario", tmp_path / "nope.toml")
+    assert res.exit_code == 2
+    res = run_cli("diagnose", rec, "--scenario", ctx.scenario.path, "-o", tmp_path / "x.txt")
+    assert res.exit_code == 2 and "-o" in res.stderr
