@@ -631,6 +631,21 @@ def candidates() -> list[Candidate]:
     return out
 
 
+def candidate_columns(d: Design, pool: list[Candidate] | None = None):
+    """Every applicable candidate's columns on the whole recording (non-linear parameters
+    estimated on the baseline's residual): ``(columns (n, m), owner id of each column)``.
+    What a generic sparse regression is given in ``bench diagnose``."""
+    resid = d.y - d.columns @ d.base.theta
+    everything = np.ones(d.n, bool)
+    cols, owners = [], []
+    for cand in pool or candidates():
+        if cand.applies(d) is None:
+            eff = cand.effect(d, resid, everything)
+            cols.append(eff.columns)
+            owners += [cand.id] * eff.columns.shape[1]
+    return (np.hstack(cols) if cols else np.zeros((d.n, 0))), owners
+
+
 # --- selection -----------------------------------------------------------------------------
 
 

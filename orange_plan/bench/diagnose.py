@@ -1,0 +1,161 @@
+"""``orange-plan bench diagnose``: diagnosis against a generic sparse regression on the
+generated concealed-effect cases (``sim.concealed``), side by side.
+
+For every case both methods see the same recording, the same baseline model and the same
+candidate columns (``identify.diagnose.candidate_columns``; the payload time and the wind
+vector pre-estimated on the baseline's residual, which favours the baseline), and are judged
+on the same held-out folds:
+
+* *diagnosis*: ``identify.diagnose.diagnose``;
+* *sparse regression*: scikit-learn ``LassoCV`` (5-fold, 100 penalties, standardised
+  columns) over the baseline's columns and every candidate's, the usual SINDy-style
+  sparse regression without physical signs, blocked folds or a significance test: a
+  candidate counts as named when any of its coefficients is non-zero.
+
+Reported per case: concealed terms, terms named, misses, false positives, held-out RMSE of
+the baseline and of each method, the relative error and the standard error of each recovered
+parameter (ours), and the seconds each method took (the recording's generation excluded).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from orange_plan.identify.diagnose import N_FOLDS, build_design, candidate_columns, diagnose
+from orange_plan.physics.terms import spec_id
+
+TEST_SEEDS = (0, 1)
+"""Seeds the test suite uses (tests/test_diagnose_concealed.py); the benchmark's default
+seeds are disjoint from them."""
+BENCH_SEEDS = (101, 102, 103)
+
+
+@dataclass
+class CaseRow:
+    """One concealed-effect case, both methods."""
+
+    case: str
+    kind: str
+    samples: int
+    duration_s: float
+    concealed: list
+    ours_named: list
+    ours_missed: list
+    ours_false: list
+    lasso_named: list
+    lasso_missed: list
+    lasso_false: list
+    baseline_holdout_rmse_W: float
+    ours_holdout_rmse_W: float
+    lasso_holdout_rmse_W: float
+    ours_seconds: float
+    lasso_seconds: float
+    params: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def compare(case) -> CaseRow:
+    """Run both methods on one ``sim.concealed.ConcealedCase``."""
+    concealed = sorted(spec_id(t) for t in case.truth)
+    start = time.perf_counter()
+    result = diagnose(case.recording, case.ctx)
+    ours_s = time.perf_counter() - start
+    named = sorted({f.term for f in result.findings})
+    start = time.perf_counter()
+    lasso_named, lasso_rmse = sparse_regression(case)
+    lasso_s = time.perf_counter() - start
+    d = result.design
+    return CaseRow(
+        case=case.name, kind=case.kind, samples=d.n, duration_s=float(d.t_s[-1]),
+        concealed=concealed, ours_named=named,
+        ours_missed=[t for t in concealed if t not in named],
+        ours_false=[t for t in named if t not in concealed],
+        lasso_named=lasso_named, lasso_missed=[t for t in concealed if t not in lasso_named],
+        lasso_false=[t for t in lasso_named if t not in concealed],
+        baseline_holdout_rmse_W=result.baseline.cv_rmse_W,
+        ours_holdout_rmse_W=result.improved.cv_rmse_W, lasso_holdout_rmse_W=lasso_rmse,
+        ours_seconds=ours_s, lasso_seconds=lasso_s,
+        params=recovered_params(result, case.truth))
+
+
+def recovered_params(result, truth: dict) -> list[dict]:
+    """Each true parameter of a named term against its fitted value and standard error."""
+    out = []
+    for finding in result.findings:
+        for term, params in truth.items():
+            if spec_id(term) != finding.term:
+                continue
+            for name, true in params.items():
+                if name in finding.params:
+                    value, sd = finding.params[name], finding.stderr.get(name, float("nan"))
+                    if name == "wind_from_deg":  # an angle: the shorter way round
+                        diff = (value - true + 180.0) % 360.0 - 180.0
+                    else:
+                        diff = value - true
+                    out.append({"term": finding.term, "param": name, "true": true,
+                                "fitted": value, "sd": sd,
+                                "z": abs(diff) / sd if sd > 0 else float("inf"),
+                                "rel_error": abs(diff) / abs(true) if true else float("nan")})
+    return out
+
+
+def sparse_regression(case) -> tuple[list[str], float]:
+    """LassoCV over the baseline's and every candidate's columns: (spec ids named, held-out
+    RMSE on the diagnosis's folds) [W]."""
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.linear_model import LassoCV
+
+    d = build_design(case.recording, case.ctx)
+    extra, owners = candidate_columns(d)
+    x = np.hstack([d.columns, extra])
+    scale = x.std(axis=0)
+    scale[scale == 0] = 1.0
+    xs = x / scale
+    held = np.zeros(d.n)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        for f in range(N_FOLDS):
+            train = d.fold != f
+            model = LassoCV(cv=5, n_alphas=100, fit_intercept=False, max_iter=5000).fit(
+                xs[train], d.y[train])
+            held[~train] = model.predict(xs[~train])
+        full = LassoCV(cv=5, n_alphas=100, fit_intercept=False, max_iter=5000).fit(xs, d.y)
+    coef = full.coef_[d.columns.shape[1]:]
+    named = sorted({spec_id(o) for o, c in zip(owners, coef) if abs(c) > 0})
+    return named, float(np.sqrt(np.mean((d.y - held) ** 2)))
+
+
+def summarise(rows: list[CaseRow]) -> dict:
+    """Totals per method: terms found, misses, false positives (and on the null cases),
+    median held-out RMSE improvement on the cases with a concealed effect, seconds."""
+    effect = [r for r in rows if r.concealed]
+    nulls = [r for r in rows if not r.concealed]
+    total = sum(len(r.concealed) for r in rows)
+
+    def method(prefix: str) -> dict:
+        found = sum(len(r.concealed) - len(getattr(r, f"{prefix}_missed")) for r in rows)
+        improvement = [100.0 * (1 - getattr(r, f"{prefix}_holdout_rmse_W")
+                                / r.baseline_holdout_rmse_W) for r in effect]
+        seconds = [getattr(r, f"{prefix}_seconds") for r in rows]
+        return {
+            "terms_found": found, "terms_concealed": total,
+            "false_positives": sum(len(getattr(r, f"{prefix}_false")) for r in rows),
+            "false_positives_on_nulls": sum(len(getattr(r, f"{prefix}_false")) for r in nulls),
+            "median_holdout_improvement_pct": float(np.median(improvement)) if improvement
+            else float("nan"),
+            "median_seconds": float(np.median(seconds)), "max_seconds": float(np.max(seconds)),
+        }
+
+    params = [p for r in rows for p in r.params]
+    return {"cases": len(rows), "null_cases": len(nulls), "diagnosis": method("ours"),
+            "sparse_regression": method("lasso"),
+            "params_within_3sd": sum(p["z"] <= 3 for p in params), "params": len(params),
+            "params_median_rel_error": float(np.nanmedian([p["rel_error"] for p in params]))
+            if params else float("nan")}
