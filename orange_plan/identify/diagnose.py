@@ -141,6 +141,21 @@ class Design:
         return self.samples.power_W
 
     @property
+    def offset(self) -> np.ndarray:
+        """``P(theta_b) - J theta_b`` [W]: what the linearisation misses of the baseline's
+        power (0 for terms linear in theta; the regen product and the in-battery loss are
+        not), so the design is a Gauss-Newton step: ``y - offset ~ J theta + C beta``."""
+        if "offset" not in self.cache:
+            power = np.asarray(self.base.power_W(self.state), float)
+            self.cache["offset"] = np.broadcast_to(power, (self.n,)) - self.columns @ self.base.theta
+        return self.cache["offset"]
+
+    @property
+    def target(self) -> np.ndarray:
+        """The recorded power less the linearisation offset: what the design regresses [W]."""
+        return self.y - self.offset
+
+    @property
     def state(self):
         return self.samples.state
 
@@ -255,10 +270,10 @@ def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
         train = d.fold != f
         x, lo, hi, _names, _extra = _stack(d, chosen, train)
         theta = _fit_rows(d, x, lo, hi, train, p)
-        held[~train] = x[~train] @ theta
+        held[~train] = x[~train] @ theta + d.offset[~train]
     x, lo, hi, names, extra = _stack(d, chosen, np.ones(n, bool))
     theta = _fit_rows(d, x, lo, hi, np.ones(n, bool), p)
-    pred = x @ theta
+    pred = x @ theta + d.offset
     resid = d.y - pred
     tau = inflation_factor(resid, d.samples, 30.0)
     s2 = float(np.mean(resid**2))
@@ -278,7 +293,7 @@ def _stack(d: Design, chosen, rows):
     p = d.columns.shape[1]
     for cand in chosen:
         x = np.hstack(cols)
-        resid = d.y - x @ _fit_rows(d, x, np.concatenate(lo), np.concatenate(hi), rows, p)
+        resid = d.target - x @ _fit_rows(d, x, np.concatenate(lo), np.concatenate(hi), rows, p)
         eff = cand.effect(d, resid, rows)
         cols.append(eff.columns)
         lo.append(eff.lower)
@@ -291,7 +306,7 @@ def _stack(d: Design, chosen, rows):
 def _fit_rows(d: Design, x, lo, hi, rows, p: int) -> np.ndarray:
     xr = x[rows]
     gram = xr.T @ xr
-    rhs = xr.T @ d.y[rows]
+    rhs = xr.T @ d.target[rows]
     w = np.r_[d.prior_weight, np.zeros(x.shape[1] - p)]
     gram[np.diag_indices_from(gram)] += w
     rhs = rhs + w * np.r_[d.prior_mean, np.zeros(x.shape[1] - p)]
@@ -323,7 +338,7 @@ def build_design(recording, ctx, *, grade_window_m: float | None = None) -> Desi
     sd0 = np.sqrt(np.diag(model.cov)) * PRIOR_SCALE
     weight = np.where(sd0 > 0, 1.0 / np.where(sd0 > 0, sd0, 1.0) ** 2, 0.0)
     design = None
-    for _ in range(4):  # the clip mask settles in a few rounds
+    for _ in range(8):  # Gauss-Newton: the clip mask and the regen product settle
         current = model.with_theta(dict(zip(model.names, theta)))
         cols = np.asarray(current.power_jacobian(state), float)
         design = Design(samples, current, cols, lower, upper, model.theta.copy(), weight, fold,
@@ -336,6 +351,7 @@ def build_design(recording, ctx, *, grade_window_m: float | None = None) -> Desi
     base = model.with_theta(dict(zip(model.names, theta)))
     design.base = base
     design.columns = np.asarray(base.power_jacobian(state), float)
+    design.cache.clear()
     return design
 
 
@@ -635,7 +651,7 @@ def candidate_columns(d: Design, pool: list[Candidate] | None = None):
     """Every applicable candidate's columns on the whole recording (non-linear parameters
     estimated on the baseline's residual): ``(columns (n, m), owner id of each column)``.
     What a generic sparse regression is given in ``bench diagnose``."""
-    resid = d.y - d.columns @ d.base.theta
+    resid = d.target - d.columns @ d.base.theta
     everything = np.ones(d.n, bool)
     cols, owners = [], []
     for cand in pool or candidates():
