@@ -16,7 +16,7 @@ python -m pip install ".[test]" && python -m pytest -q
 
 
 @pytest.mark.parametrize("command", [[], ["range"], ["reach"], ["simulate"], ["convert"],
-                                     ["predict"], ["calibrate"], ["bench"], ["bench", "reach"],
+                                     ["predict"], ["calibrate"], ["diagnose"], ["bench"], ["bench", "reach"],
                                      ["bench", "online"], ["bench", "calibration"]])
 def test_help_cites_no_spec_section(command):
     code, stdout, _ = run_cli(*command, "--help")
