@@ -1009,6 +1009,34 @@ class Diagnosis:
             out[cand.id] = x[:, own] @ self.improved.theta[own]
         return out
 
+    def residual_per_second(self):
+        """(second edges [s], baseline residual, improved residual): 1 s means [W]."""
+        d = self.design
+        edges, before, _ = _per_second(d.t_s, d.y - self.baseline.predicted_W)
+        _, after, _ = _per_second(d.t_s, d.y - self.improved.predicted_W)
+        return edges, before, after
+
+    def feature_panels(self) -> list[tuple]:
+        """What to plot the residual against: ``(label, feature, baseline residual, fitted
+        term or None, name)`` per found term (at most three); with none found, the best
+        candidate's feature, nothing fitted."""
+        d = self.design
+        resid = d.y - self.baseline.predicted_W
+        fitted = self.contributions_W() if self.chosen else {}
+        panels = []
+        for cand in self.chosen[:3]:
+            values, label = cand.feature(d)
+            panels.append((label, np.asarray(values, float), resid, fitted[cand.id], cand.id))
+        if panels:
+            return panels
+        best = max(self.trials, key=lambda t: t.gain, default=None)
+        cand = next((c for c in candidates() if best and c.id == best.id), None)
+        if cand is None:
+            return [("time since start [s]", d.t_s, resid, None, "")]
+        values, label = cand.feature(d)
+        return [(f"{label} (best candidate, not kept)", np.asarray(values, float), resid, None,
+                 cand.id)]
+
     def to_dict(self) -> dict:
         base_terms = [spec_id(t) for t in self.design.base.term_ids]
         added = [f.term for f in self.findings]

@@ -26,7 +26,7 @@ def diagnosis_figure(result, title: str = ""):
     import matplotlib.pyplot as plt
 
     d = result.design
-    panels = _feature_panels(result)
+    panels = result.feature_panels()
     fig = plt.figure(figsize=(11, 7.5))
     grid = fig.add_gridspec(2, max(1, len(panels)), height_ratios=[1.1, 1])
     _time_panel(fig.add_subplot(grid[0, :]), result)
@@ -55,13 +55,8 @@ def diagnosis_figure(result, title: str = ""):
 
 
 def _time_panel(ax, result) -> None:
-    from orange_plan.identify.diagnose import _per_second
-
     d = result.design
-    before = d.y - result.baseline.predicted_W
-    after = d.y - result.improved.predicted_W
-    edges, mean_before, _ = _per_second(d.t_s, before)
-    _, mean_after, _ = _per_second(d.t_s, after)
+    edges, mean_before, mean_after = result.residual_per_second()
     t_min = edges[:-1] / 60.0
     span = d.t_s[-1] - d.t_s[0]
     for m in result.mismatches:
@@ -79,30 +74,6 @@ def _time_panel(ax, result) -> None:
         "nothing added") + "   (shaded: located windows)", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
-
-
-def _feature_panels(result):
-    """(label, feature, baseline residual, fitted term or None, name) per found term (at
-    most three); with none found, the best candidate's feature, nothing fitted."""
-    d = result.design
-    resid = d.y - result.baseline.predicted_W
-    panels = []
-    fitted = result.contributions_W() if result.chosen else {}
-    for cand in result.chosen[:3]:
-        values, label = cand.feature(d)
-        panels.append((label, np.asarray(values, float), resid, fitted[cand.id], cand.id))
-    if not panels:
-        from orange_plan.identify.diagnose import candidates
-
-        best = max(result.trials, key=lambda t: t.gain, default=None)
-        cand = next((c for c in candidates() if best and c.id == best.id), None)
-        if cand is not None:
-            values, label = cand.feature(d)
-            panels.append((f"{label} (best candidate, not kept)", np.asarray(values, float),
-                           resid, None, cand.id))
-        else:
-            panels.append(("time since start [s]", d.t_s, resid, None, ""))
-    return panels
 
 
 def _binned(x: np.ndarray, y: np.ndarray, bins: int = 24, least: int = 3):
