@@ -64,7 +64,7 @@ from scipy.signal import lfilter
 
 from orange_plan.atomic import atomic_path
 from orange_plan.context import Context, context_of
-from orange_plan.errors import InputError, close_match_hint
+from orange_plan.errors import InputError, OrangeError, close_match_hint
 from orange_plan.examples import examples_dir
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
@@ -424,6 +424,10 @@ STYLES = {
 }
 
 
+MAX_ROUTE_TRIES = 200_000
+"""Candidate draws before a route search gives up (a 30-min run needs a few hundred)."""
+
+
 def _pool_ok(world, style: str, surface: str | None):
     """Predicate on candidate points (x, y) arrays for the style's pool."""
     if style == "hills":
@@ -446,13 +450,15 @@ def _route(rng, world, style: str, length_m: float, v_range_mps: tuple[float, fl
     pool = _pool_points(rng, world, on_pool) if p_pool > 0 else np.zeros((0, 2))
     pts = [pool[0] if len(pool) else np.asarray(world.home_xy_m, float)]
     heading, total = rng.uniform(0, 2 * np.pi), 0.0
-    while total < length_m:
+    for _ in range(MAX_ROUTE_TRIES):
+        if total >= length_m:
+            break
         here = pts[-1]
         from_pool = rng.random() < p_pool
         if from_pool:  # a pool point whose straight segment stays mostly on the pool
             cand = pool[rng.integers(len(pool), size=64)]
             dist = np.hypot(*(cand - here).T)
-            keep = on_pool(cand[:, 0], cand[:, 1]) & (dist > l_lo)
+            keep = dist > l_lo
             if on_pool(here[:1], here[1:])[0]:
                 keep &= dist < 6 * l_hi
                 cand = cand[keep][_mostly_on(on_pool, here, cand[keep])]
@@ -473,6 +479,9 @@ def _route(rng, world, style: str, length_m: float, v_range_mps: tuple[float, fl
         heading = math.atan2(nxt[1] - here[1], nxt[0] - here[0])
         total += float(np.hypot(*(nxt - here)))
         pts.append(nxt)
+    else:
+        raise OrangeError(f"no {style} route of {length_m:.0f} m found in "
+                          f"{MAX_ROUTE_TRIES} tries (reached {total:.0f} m)")
     xy = np.asarray(pts)
     return Route(xy, rng.uniform(*v_range_mps, len(xy)), f"concealed route ({style})")
 
