@@ -36,6 +36,7 @@ from orange_plan.sim.concealed import (
 )
 from orange_plan.sim.simulator import with_payload
 from orange_plan.telemetry.recording import integrate_J, load_recording, recording_from_frame
+from orange_plan.telemetry.replay import replay_context
 from orange_plan.telemetry.state import recording_state
 
 DURATION_S = 300.0
@@ -256,6 +257,19 @@ def test_write_round_trips_through_the_cli_readers(tmp_path, suite):
     np.testing.assert_allclose(ctx.model.theta, case.ctx.model.theta)
     loaded = load_recording(csv_path)
     np.testing.assert_allclose(loaded.energy_J, case.recording.energy_J, rtol=1e-9)
+    code, stdout, stderr = run_cli("predict", csv_path, "--scenario", scenario_path, "--json")
+    assert code == 0, stderr
+    # predict on the written files sees what the case's scenario sees on its recording
+    expected = replay_context(case.recording, case.ctx).energy_predicted_J
+    assert json.loads(stdout)["energy_predicted_J"] == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize(("term", "kind"), [(t, k) for t in CONCEALABLE for k in KINDS[t][1:]])
+def test_terms_on_their_other_kind(term, kind):
+    case = concealed_case([term], 5, kind=kind, duration_s=180.0, rate_Hz=5.0)
+    assert case.kind == kind and set(case.truth) == {term}
+    e_rec, _, e_done, _, _ = energies(case)
+    assert abs(e_done - e_rec) / e_rec * 100 < 2 * ENERGY_TOL_PCT
 
 
 @pytest.mark.parametrize(("terms", "kwargs", "match"), [

@@ -98,7 +98,8 @@ KINDS: dict[str, tuple[str, ...]] = {
     "drift": ("ground", "aerial"),
 }
 """Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
-Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal.)"""
+Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed
+ancillary draw is a constant beside the hover power: only its default, ground, separates it.)"""
 
 SCENARIOS = {"ground": "kiwibot_campus.toml", "aerial": "ar_drone_wind.toml"}
 """The example scenario of each kind (``scenarios/``)."""
