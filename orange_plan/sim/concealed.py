@@ -631,7 +631,9 @@ def _drive(plan: _Plan, ctx: Context, rng, duration_s: float, rate_Hz: float):
     """Simulate the motion; returns the frame (true power, no noise) and the shift of the
     simulator's clock onto the recording's [s]."""
     robot = ctx.scenario.robot
-    landed_s = rng.uniform(30.0, 60.0, 2) if plan.landed else np.zeros(2)
+    # 30-60 s landed at each end, at most a sixth of a short run each
+    landed_s = (np.minimum(rng.uniform(30.0, 60.0, 2), duration_s / 6) if plan.landed
+                else np.zeros(2))
     drive_s = duration_s - float(landed_s.sum())
     lo = 0.8 if plan.route_style == "fast" else 0.6
     v_range = (max(robot.v_min_mps, lo * robot.v_max_mps), robot.v_max_mps)
