@@ -1,0 +1,730 @@
+"""Concealed-effect cases: simulated recordings holding physics the scenario's model lacks.
+
+The test data of ``orange-plan diagnose`` (issue 9): each ``ConcealedCase`` is a recording
+that contains one or two physical effects (``CONCEALABLE``) while the scenario handed to
+diagnosis (``ConcealedCase.ctx``) leaves them out and no column of the recording labels them.
+Null cases conceal nothing (the scenario may still have a mis-set coefficient of a term it
+already has). Ground cases drive the Kiwibot on the hilly campus
+(``scenarios/kiwibot_campus.toml``), aerial ones fly the AR.Drone over its field
+(``scenarios/ar_drone_wind.toml``, battery enlarged to last the run).
+
+How a case is made
+------------------
+1. Motion: ``sim.simulator.simulate`` drives a random route (``_route``: turns, stops, hills
+   or a surface as the effect needs; speeds drawn per vertex) under the *truth* scenario,
+   whose model has the concealed motion terms with their true coefficients (``rolling``,
+   ``surface_rolling``, ``aero_drag``, ``grade``, ``inertia``, ``regen``, ``turning``) or the
+   simulator's truth-only effects (``wind``: mean + Ornstein-Uhlenbeck gusts, not recorded;
+   ``payload``: mass change at ``payload_from_s``). Aerial runs lose the simulator's rest at
+   both ends, so "stationary at the ends" means landed (``hover``).
+2. Power terms the model has (``ancillary``, ``sensor_rate``, ``hover``, ``drift``) are added
+   to the simulated power with the model's own terms (``EnergyModel.power_W`` of that term
+   alone). ``sensor_rate``'s recording switches ``sensor_rate_Hz`` among 5/10/20/30 Hz;
+   ``hover`` adds 30-60 s landed at rest (ancillary only) at both ends.
+3. Effects with no Term, as post-processing of the true power P [W]:
+   ``hvac``: ``P += hvac_heat_W_per_K max(0, 20 - T_a) + hvac_cool_W_per_K max(0, T_a - 20)``
+   (setpoint 20 C, T_a the ``ambient_C`` column);
+   ``battery_resistance``: ``P += k P^2`` (I^2 R at I = P / V: k = R / V^2 [1/W]);
+   ``battery_temperature``: ``P += c max(0, 25 - T_b) P^2`` (T_b the ``battery_C`` column).
+   The battery losses come last (they act on everything the battery delivers).
+4. Measurement, on every case: the recorded power lags the motion by 0.1-0.5 s and carries an
+   AR(1) disturbance (correlation time 5-20 s, sd 2-5 % of the mean power) and white noise
+   (1-3 %); positions carry white noise; ``soc`` follows the true energy.
+
+Every case has the same columns: ``t_s, x_m, y_m, z_m, v_mps, yaw_rate_radps, accel_mps2,
+power_W, soc, sensor_rate_Hz, ambient_C, battery_C`` (SPEC §3): ``ambient_C`` is a smooth
+non-monotone walk over 0-35 C and ``battery_C`` warms towards 25-30 C from a start at
+-10..20 C (-10..5 C in ``battery_temperature`` cases), so neither column's presence or range
+gives a case away; ``payload_kg``, ``surface`` and the wind columns are never written. (Only
+``hover`` cases start and end landed: without those periods a hover power and an ancillary
+draw are the same constant.)
+
+Effect sizes: the share of the run's energy the concealed term carries (30-min runs at 10 Hz,
+seeds 0-4, README "Concealed-effect cases"): power terms are sized from the simulated mean
+power (ancillary 14-22 %, sensor rate 9-16 %, drift 6-16 %, hvac 10-23 %, battery resistance
+4-10 %, battery temperature 6-10 %); motion terms take physical coefficients (rolling 7-27 %,
+surface rolling 5-28 %, drag 15-24 %, grade 14-28 %, turning 9-16 %, wind 5-9 %, payload
+1-7 %). Inertia (0.4-2 %) and regen (6-11 %) mostly move energy between moments: the power's
+residual RMS halves when they are modelled. Hover is the drone's main draw (72-77 %): a
+5-30 % hover would not be a drone.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import tomli_w
+from scipy.signal import lfilter
+
+from orange_plan.atomic import atomic_path
+from orange_plan.context import Context, context_of
+from orange_plan.errors import InputError, OrangeError, close_match_hint
+from orange_plan.examples import examples_dir
+from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.state import MotionState
+from orange_plan.physics.terms import TERMS
+from orange_plan.scenario import read_toml, scenario_from_dict
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import MAX_RATE_HZ, simulate
+from orange_plan.sim.truth import Truth, Wind
+from orange_plan.telemetry.recording import Recording, recording_from_frame, write_recording
+
+CONCEALABLE: tuple[str, ...] = (
+    "ancillary", "sensor_rate", "hover", "rolling", "surface_rolling", "aero_drag", "grade",
+    "inertia", "regen", "turning", "wind", "payload", "hvac", "battery_resistance",
+    "battery_temperature", "drift",
+)
+"""Vocabulary ids (SPEC §6) a case can conceal."""
+
+PAIRS: tuple[tuple[str, str], ...] = (
+    ("turning", "payload"), ("wind", "payload"), ("surface_rolling", "battery_resistance"),
+    ("hvac", "inertia"), ("drift", "turning"),
+)
+"""Two concealed effects at once (``concealed_suite``)."""
+
+KINDS: dict[str, tuple[str, ...]] = {
+    "ancillary": ("ground", "aerial"), "sensor_rate": ("ground", "aerial"),
+    "hover": ("aerial",), "rolling": ("ground",), "surface_rolling": ("ground",),
+    "aero_drag": ("aerial",), "grade": ("ground",), "inertia": ("ground", "aerial"),
+    "regen": ("ground",), "turning": ("ground",), "wind": ("aerial",),
+    "payload": ("ground", "aerial"), "hvac": ("ground", "aerial"),
+    "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
+    "drift": ("ground", "aerial"),
+}
+"""Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
+Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed
+ancillary draw is a constant beside the hover power: only its default, ground, separates it.)"""
+
+SCENARIOS = {"ground": "kiwibot_campus.toml", "aerial": "ar_drone_wind.toml"}
+"""The example scenario of each kind (``scenarios/``)."""
+
+HVAC_SETPOINT_C = 20.0
+"""Cabin / enclosure setpoint of the hvac effect [C]."""
+BATTERY_WARM_C = 25.0
+"""Battery temperature above which the cold loss vanishes [C]."""
+SENSOR_RATES_HZ = (5.0, 10.0, 20.0, 30.0)
+"""Rates the ``sensor_rate`` recording switches among [Hz]."""
+AERIAL_PACK_S = 450.0
+"""Flight time per AR.Drone pack at ~60 W with ~40 % left: the aerial battery is enlarged by
+``duration / AERIAL_PACK_S`` so a long run does not empty it [s]."""
+
+
+@dataclass(frozen=True)
+class ConcealedCase:
+    """One concealed-effect recording and the scenario diagnosis is given.
+
+    Attributes
+    ----------
+    name : ``"turning/seed3"``, ``"wind+payload/seed1"``, ``"null-ground/seed2"``
+    kind : ``"ground"`` or ``"aerial"``
+    ctx : the scenario as diagnosis sees it: its model lacks the concealed effect(s)
+    recording : the recording cleaned by telemetry's normal reading path
+    frame : the same as a SPEC §3 table (what ``write`` puts in the CSV)
+    truth : concealed term id -> {parameter name: true value}; ``{}`` for null cases
+    scenario_toml : the TOML mapping of ``ctx`` (map path relative to ``scenarios/``)
+    measurement : the recording's measurement effects (not physics, not for diagnosis to
+        name): ``lag_s`` of the power behind the motion, the AR(1) disturbance's ``ar_tau_s``
+        and ``ar_sd_W``, ``white_sd_W``, ``position_sd_m``
+    """
+
+    name: str
+    kind: str
+    ctx: Context
+    recording: Recording
+    frame: pd.DataFrame
+    truth: dict[str, dict[str, float]]
+    scenario_toml: dict = field(repr=False, default_factory=dict)
+    measurement: dict[str, float] = field(default_factory=dict)
+
+    def write(self, folder) -> tuple[Path, Path]:
+        """Write the scenario TOML and the recording CSV into ``folder`` (for the CLI).
+
+        The map path is written absolute (the case's scenario lives in a scratch folder).
+        Both files are written atomically. Returns (scenario path, recording path).
+        """
+        folder = Path(folder)
+        stem = self.name.replace("/", "_")
+        data = copy.deepcopy(self.scenario_toml)
+        data["map"] = str(self.ctx.scenario.map_path)
+        scenario_path = folder / f"{stem}.toml"
+        with atomic_path(scenario_path, ".toml") as tmp:
+            tmp.write_text(tomli_w.dumps(data), encoding="utf-8")
+        return scenario_path, write_recording(self.frame, folder / f"{stem}.csv")
+
+
+@dataclass
+class _Plan:
+    """What the term recipes decide before and after the simulation (mutable, internal)."""
+
+    kind: str
+    duration_s: float
+    truth_toml: dict
+    seen_toml: dict
+    sim_truth: dict = field(default_factory=dict)      # Truth(...) keyword arguments
+    route_style: str = "mixed"
+    landed: bool = False
+    battery_cold: bool = False
+    sensor_schedule: bool = False
+    power_effects: list[Callable] = field(default_factory=list)    # (plan, frame, P, rng) -> P
+    battery_effects: list[Callable] = field(default_factory=list)  # same, applied last
+    truth: dict[str, dict[str, float]] = field(default_factory=dict)
+    measurement: dict[str, float] = field(default_factory=dict)
+    mass_over_omega_kg: float = 0.0
+    surface_names: tuple[str, ...] = ()
+
+    def shape_route(self, style: str) -> None:
+        """Ask for a route style; the first term that asks wins (recipes run in
+        ``_ROUTE_PRIORITY`` order)."""
+        if self.route_style in ("mixed", "aerial"):
+            self.route_style = style
+
+
+# --- term recipes: each edits the truth / seen scenarios and the plan ----------------------
+
+
+def _model(toml: dict) -> dict:
+    return toml.setdefault("model", {})
+
+
+def _add_model_term(toml: dict, term: str) -> None:
+    terms = _model(toml).setdefault("terms", [])
+    if term not in terms:
+        terms.append(term)
+
+
+def _ancillary(plan: _Plan, rng) -> None:
+    for toml in (plan.truth_toml, plan.seen_toml):
+        toml["ancillary"].update(s0_W=0.0, compute_W=0.0, comm_W=0.0)
+    share = rng.uniform(0.10, 0.35)
+    plan.power_effects.append(lambda p, frame, power, _rng: power + _power_term_W(
+        "ancillary", {"ancillary_W": p.truth["ancillary"]["ancillary_W"]}, frame))
+    plan.power_effects.insert(0, _sizer("ancillary", "ancillary_W", share,
+                                        lambda frame: np.ones(len(frame))))
+
+
+def _sensor_rate(plan: _Plan, rng) -> None:
+    for toml in (plan.truth_toml, plan.seen_toml):
+        toml["ancillary"]["s1_W_per_Hz"] = 0.0
+    plan.sensor_schedule = True
+    share = rng.uniform(0.08, 0.25)
+    plan.power_effects.insert(0, _sizer("sensor_rate", "sensor_W_per_Hz", share,
+                                        lambda frame: frame["sensor_rate_Hz"].to_numpy(float)))
+    plan.power_effects.append(lambda p, frame, power, _rng: power + _power_term_W(
+        "sensor_rate", p.truth["sensor_rate"], frame))
+
+
+def _hover(plan: _Plan, rng) -> None:
+    nominal = plan.truth_toml["robot"]["hover_W"]
+    for toml in (plan.truth_toml, plan.seen_toml):
+        toml["robot"]["hover_W"] = 0.0
+    plan.truth["hover"] = {"hover_W": float(nominal * rng.uniform(0.85, 1.15))}
+    plan.landed = True
+
+    def add(p, frame, power, _rng):
+        airborne = frame["_airborne"].to_numpy(bool)
+        return power + airborne * _power_term_W("hover", p.truth["hover"], frame)
+
+    plan.power_effects.append(add)
+
+
+def _rolling(plan: _Plan, rng) -> None:
+    true = plan.mass_over_omega_kg * rng.uniform(0.8, 1.25)
+    _model(plan.truth_toml)["rolling_kg"] = true
+    _model(plan.seen_toml)["rolling_kg"] = 0.0
+    plan.truth["rolling"] = {"rolling_kg": float(true)}
+    plan.shape_route("walks")  # a sidewalk robot's walks: on the lawn rolling is over half
+
+
+def _surface_rolling(plan: _Plan, rng) -> None:
+    names = sorted(plan.surface_names)
+    surface = names[int(rng.integers(len(names)))]
+    _add_model_term(plan.truth_toml, "surface_rolling")
+    name = f"rolling_kg_{surface}"
+    true = plan.mass_over_omega_kg * rng.uniform(1.8, 3.0)
+    _model(plan.truth_toml)[name] = true
+    plan.truth["surface_rolling"] = {name: float(true)}
+    plan.shape_route(f"surface:{surface}")
+
+
+def _aero_drag(plan: _Plan, rng) -> None:
+    robot = plan.truth_toml["robot"]
+    robot["drag_coeff_kg_per_m"] = robot["drag_coeff_kg_per_m"] * rng.uniform(0.7, 1.5)
+    plan.seen_toml["robot"]["drag_coeff_kg_per_m"] = 0.0
+    omega = (1 - plan.truth_toml["losses"]["motor"]) * (1 - plan.truth_toml["losses"]["mechanical"])
+    plan.truth["aero_drag"] = {"drag_kg_per_m": float(robot["drag_coeff_kg_per_m"] / omega)}
+    plan.shape_route("fast")
+
+
+def _grade(plan: _Plan, rng) -> None:
+    true = plan.mass_over_omega_kg * rng.uniform(0.8, 1.25)
+    _model(plan.truth_toml)["grade_kg"] = true
+    _model(plan.seen_toml)["grade_kg"] = 0.0
+    plan.truth["grade"] = {"grade_kg": float(true)}
+    plan.shape_route("hills")
+
+
+def _inertia(plan: _Plan, rng) -> None:
+    _add_model_term(plan.truth_toml, "inertia")
+    true = plan.mass_over_omega_kg * rng.uniform(0.8, 1.25)
+    _model(plan.truth_toml)["inertia_kg"] = true
+    plan.truth["inertia"] = {"inertia_kg": float(true)}
+    plan.sim_truth["stop_every_s"] = float(rng.uniform(10.0, 25.0))
+
+
+def _regen(plan: _Plan, rng) -> None:
+    for toml in (plan.truth_toml, plan.seen_toml):  # regen needs braking in the model
+        _add_model_term(toml, "inertia")
+    _add_model_term(plan.truth_toml, "regen")
+    true = rng.uniform(0.4, 0.8)
+    _model(plan.truth_toml)["regen_efficiency"] = true
+    plan.truth["regen"] = {"regen_efficiency": float(true)}
+    plan.sim_truth.setdefault("stop_every_s", float(rng.uniform(15.0, 30.0)))
+    plan.shape_route("hills")
+
+
+def _turning(plan: _Plan, rng) -> None:
+    true = rng.uniform(15.0, 45.0)
+    plan.truth_toml["robot"]["turn_coeff_W_s_per_rad"] = true
+    plan.seen_toml["robot"]["turn_coeff_W_s_per_rad"] = 0.0
+    plan.truth["turning"] = {"turn_J_per_rad": float(true)}
+    plan.shape_route("turns")
+
+
+def _wind(plan: _Plan, rng) -> None:
+    speed, from_deg = rng.uniform(2.0, 6.0), rng.uniform(0.0, 360.0)
+    for toml, (s, d) in ((plan.truth_toml, (speed, from_deg)), (plan.seen_toml, (0.0, 0.0))):
+        toml["environment"].update(wind_speed_mps=s, wind_from_deg=d)
+    plan.sim_truth["wind"] = Wind(speed, from_deg, gust_std_mps=speed * rng.uniform(0.1, 0.2),
+                                  gust_tau_s=rng.uniform(5.0, 15.0), recorded=False)
+    plan.truth["wind"] = {"wind_speed_mps": float(speed), "wind_from_deg": float(from_deg)}
+
+
+def _payload(plan: _Plan, rng) -> None:
+    mass = plan.truth_toml["robot"]["mass_kg"]
+    extra = mass * rng.uniform(0.1, 0.4) * (1 if rng.random() < 0.5 else -1)
+    plan.sim_truth.update(payload_kg=float(extra),
+                          payload_from_s=float(plan.duration_s * rng.uniform(0.2, 0.8)))
+    # payload_from_s is moved onto the recording's clock once the run is trimmed
+    plan.truth["payload"] = {"payload_kg": float(extra)}
+
+
+def _hvac(plan: _Plan, rng) -> None:
+    mode = ("heat", "cool", "both")[int(rng.integers(3))]
+    share = rng.uniform(0.08, 0.30)
+
+    def add(p, frame, power, _rng):
+        t_c = frame["ambient_C"].to_numpy(float)
+        feats = {"hvac_heat_W_per_K": np.maximum(0.0, HVAC_SETPOINT_C - t_c),
+                 "hvac_cool_W_per_K": np.maximum(0.0, t_c - HVAC_SETPOINT_C)}
+        chosen = [k for k in feats if mode == "both" or k.startswith(f"hvac_{mode}")]
+        target_W = share * float(np.mean(power)) / len(chosen)
+        p.truth["hvac"] = {k: target_W / max(float(np.mean(feats[k])), 1e-3) for k in chosen}
+        return power + sum(p.truth["hvac"][k] * feats[k] for k in chosen)
+
+    plan.power_effects.append(add)
+
+
+def _battery_resistance(plan: _Plan, rng) -> None:
+    loss = rng.uniform(0.03, 0.10)
+
+    def add(p, frame, power, _rng):
+        k = loss / float(np.mean(power))  # loss fraction `loss` at the mean power
+        p.truth["battery_resistance"] = {"battery_loss_per_W": k}
+        return power + k * power**2
+
+    plan.battery_effects.append(add)
+
+
+def _battery_temperature(plan: _Plan, rng) -> None:
+    plan.battery_cold = True
+    loss = rng.uniform(0.04, 0.12)
+
+    def add(p, frame, power, _rng):
+        cold = np.maximum(0.0, BATTERY_WARM_C - frame["battery_C"].to_numpy(float))
+        c = loss * float(np.mean(power)) / max(float(np.mean(cold * power**2)), 1e-9)
+        p.truth["battery_temperature"] = {"battery_cold_loss_per_W_K": c}
+        return power + c * cold * power**2
+
+    plan.battery_effects.append(add)
+
+
+def _drift(plan: _Plan, rng) -> None:
+    share = rng.uniform(0.05, 0.20)
+    plan.power_effects.insert(0, _sizer(
+        "drift", "drift_W", share,
+        lambda frame: TERMS["drift"].features(_power_state(frame))[0]))
+    plan.power_effects.append(lambda p, frame, power, _rng: power + _power_term_W(
+        "drift", p.truth["drift"], frame))
+
+
+RECIPES: dict[str, Callable[[_Plan, np.random.Generator], None]] = {
+    "ancillary": _ancillary, "sensor_rate": _sensor_rate, "hover": _hover, "rolling": _rolling,
+    "surface_rolling": _surface_rolling, "aero_drag": _aero_drag, "grade": _grade,
+    "inertia": _inertia, "regen": _regen, "turning": _turning, "wind": _wind,
+    "payload": _payload, "hvac": _hvac, "battery_resistance": _battery_resistance,
+    "battery_temperature": _battery_temperature, "drift": _drift,
+}
+
+
+def _sizer(term: str, coefficient: str, share: float, feature: Callable) -> Callable:
+    """A power effect that sets ``coefficient`` so that the term's mean power is ``share`` of
+    the mean simulated power (it changes no power itself; it runs before the term's adder)."""
+
+    def size(p, frame, power, _rng):
+        p.truth[term] = {coefficient: share * float(np.mean(power))
+                         / max(float(np.mean(feature(frame))), 1e-9)}
+        return power
+
+    return size
+
+
+def _power_state(frame: pd.DataFrame) -> MotionState:
+    """The state of the time-only power terms: speed, sensor rate, elapsed time."""
+    t = frame["t_s"].to_numpy(float)
+    return MotionState(speed_mps=frame["v_mps"].to_numpy(float),
+                       sensor_rate_Hz=frame["sensor_rate_Hz"].to_numpy(float),
+                       channels={"elapsed_s": t - t[0]})
+
+
+def _power_term_W(term: str, theta: dict[str, float], frame: pd.DataFrame) -> np.ndarray:
+    """Power of one model term alone at the frame's samples [W] (the model's own maths)."""
+    model = EnergyModel([TERMS[term]], theta)
+    return np.asarray(model.power_W(_power_state(frame)), float) + np.zeros(len(frame))
+
+
+def _mis_set(plan: _Plan, rng) -> None:
+    """Null cases: a coefficient the model has is 10-20 % off (not a missing term): the
+    ancillary loads, else the rolling coefficient (ground) or the hover power (aerial)."""
+    factor = 1.0 + rng.uniform(0.10, 0.20) * (1 if rng.random() < 0.5 else -1)
+    seen = plan.seen_toml
+    if rng.random() < 0.5:
+        for key in ("s0_W", "compute_W", "comm_W"):
+            seen["ancillary"][key] *= factor
+    elif plan.kind == "ground":
+        _model(seen)["rolling_kg"] = plan.mass_over_omega_kg * factor
+    else:
+        seen["robot"]["hover_W"] *= factor
+
+
+# --- routes ----------------------------------------------------------------------------------
+
+STYLES = {
+    # step length range [m], heading change range [deg], share of waypoints from the pool
+    "mixed": ((15.0, 60.0), (10.0, 120.0), 0.5),
+    "walks": ((10.0, 40.0), (10.0, 120.0), 0.85),
+    "turns": ((4.0, 12.0), (45.0, 150.0), 0.0),
+    "hills": ((20.0, 60.0), (10.0, 90.0), 0.6),
+    "surface": ((10.0, 40.0), (10.0, 120.0), 0.85),
+    "aerial": ((30.0, 120.0), (10.0, 150.0), 0.0),
+}
+
+
+MAX_ROUTE_TRIES = 200_000
+"""Candidate draws before a route search gives up (a 30-min run needs a few hundred)."""
+
+
+def _pool_ok(world, style: str, surface: str | None):
+    """Predicate on candidate points (x, y) arrays for the style's pool."""
+    if style == "hills":
+        xs = np.linspace(*world.map.boundary.bounds[0::2], 41)
+        ys = np.linspace(*world.map.boundary.bounds[1::2], 41)
+        gx, gy = np.meshgrid(xs, ys)
+        top = float(np.max(world.elevation_at(gx, gy)))
+        return lambda x, y: world.elevation_at(x, y) >= 0.3 * top
+    if surface is not None:
+        code = world.map.surface_names.index(surface)
+        return lambda x, y: world.surface_code_at(x, y) == code
+    return lambda x, y: world.surface_code_at(x, y) >= 0  # "mixed", "walks": walks, plazas
+
+
+def _route(rng, world, style: str, length_m: float, v_range_mps: tuple[float, float]) -> Route:
+    """A random collision-free route of at least ``length_m`` (see ``STYLES``)."""
+    surface = style.split(":", 1)[1] if style.startswith("surface:") else None
+    (l_lo, l_hi), (t_lo, t_hi), p_pool = STYLES["surface" if surface else style]
+    on_pool = _pool_ok(world, style, surface)
+    pool = _pool_points(rng, world, on_pool) if p_pool > 0 else np.zeros((0, 2))
+    pts = [pool[0] if len(pool) else np.asarray(world.home_xy_m, float)]
+    heading, total = rng.uniform(0, 2 * np.pi), 0.0
+    for _ in range(MAX_ROUTE_TRIES):
+        if total >= length_m:
+            break
+        here = pts[-1]
+        from_pool = rng.random() < p_pool
+        if from_pool:  # a pool point whose straight segment stays mostly on the pool
+            cand = pool[rng.integers(len(pool), size=64)]
+            dist = np.hypot(*(cand - here).T)
+            keep = dist > l_lo
+            if on_pool(here[:1], here[1:])[0]:
+                keep &= dist < 6 * l_hi
+                cand = cand[keep][_mostly_on(on_pool, here, cand[keep])]
+            else:  # off the pool: back onto it by the nearest way
+                cand = cand[keep][np.argsort(dist[keep])]
+        else:
+            n = 32
+            turn = np.deg2rad(rng.uniform(t_lo, t_hi, n)) * rng.choice([-1.0, 1.0], n)
+            step = rng.uniform(l_lo, l_hi, n)
+            cand = here + np.c_[np.cos(heading + turn), np.sin(heading + turn)] * step[:, None]
+        cand = cand[world.is_free(cand[:, 0], cand[:, 1])]
+        cand = cand[world.segments_free(np.broadcast_to(here, cand.shape), cand)] if len(cand) else cand
+        if not len(cand):
+            if not from_pool:
+                heading += np.pi  # boxed in: turn round
+            continue
+        nxt = cand[0]
+        heading = math.atan2(nxt[1] - here[1], nxt[0] - here[0])
+        total += float(np.hypot(*(nxt - here)))
+        pts.append(nxt)
+    else:
+        raise OrangeError(f"no {style} route of {length_m:.0f} m found in "
+                          f"{MAX_ROUTE_TRIES} tries (reached {total:.0f} m)")
+    xy = np.asarray(pts)
+    return Route(xy, rng.uniform(*v_range_mps, len(xy)), f"concealed route ({style})")
+
+
+def _pool_points(rng, world, on_pool, n: int = 40_000) -> np.ndarray:
+    """Free points of the pool, uniformly drawn (a small plaza still gets a few hundred)."""
+    x0, y0, x1, y1 = world.map.boundary.bounds
+    cand = np.c_[rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)]
+    ok = on_pool(cand[:, 0], cand[:, 1]) & world.is_free(cand[:, 0], cand[:, 1])
+    if not ok.any():
+        raise InputError("the map has no free point for the route's pool (surface or hills)")
+    return cand[ok]
+
+
+def _mostly_on(on_pool, start, ends, share: float = 0.8) -> np.ndarray:
+    """True for segments start -> end with at least ``share`` of 16 points on the pool."""
+    if not len(ends):
+        return np.zeros(0, bool)
+    f = np.linspace(0.0, 1.0, 16)
+    x = start[0] + (ends[:, 0:1] - start[0]) * f
+    y = start[1] + (ends[:, 1:2] - start[1]) * f
+    return np.mean(on_pool(x, y), axis=1) >= share
+
+
+# --- conditions columns ---------------------------------------------------------------------
+
+
+def _smooth_walk(rng, t_s: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """A smooth, non-monotone path over [lo, hi]: three random sinusoids with periods between
+    a fifth and the whole of the run, rescaled to span the interval."""
+    span = max(float(t_s[-1] - t_s[0]), 1.0)
+    periods = rng.uniform(0.2, 1.0, 3) * span
+    periods[0] = rng.uniform(0.3, 0.6) * span  # at least one full swing: not monotone
+    phases = rng.uniform(0, 2 * np.pi, 3)
+    amps = rng.uniform(0.5, 1.0, 3)
+    wave = sum(a * np.sin(2 * np.pi * t_s / p + ph) for a, p, ph in zip(amps, periods, phases))
+    wave = (wave - wave.min()) / max(float(np.ptp(wave)), 1e-9)
+    return lo + (hi - lo) * wave
+
+
+def _battery_temperature_C(rng, t_s: np.ndarray, cold: bool) -> np.ndarray:
+    """Battery warming from a start temperature to 25-30 C (time constant 20-40 % of the run),
+    with 0.2 C sensor noise [C]."""
+    start = rng.uniform(-10.0, 5.0) if cold else rng.uniform(-10.0, 20.0)
+    end, tau = rng.uniform(25.0, 30.0), rng.uniform(0.2, 0.4) * max(float(t_s[-1]), 1.0)
+    return end + (start - end) * np.exp(-(t_s - t_s[0]) / tau) + rng.normal(0, 0.2, t_s.size)
+
+
+def _sensor_schedule_Hz(rng, t_s: np.ndarray) -> np.ndarray:
+    """Sensor rate switching among ``SENSOR_RATES_HZ`` every 1/12 to 1/5 of the run [Hz]."""
+    span = max(float(t_s[-1] - t_s[0]), 1.0)
+    edges, rates = [t_s[0]], []
+    while edges[-1] <= t_s[-1]:
+        edges.append(edges[-1] + rng.uniform(span / 12, span / 5))
+        choices = [r for r in SENSOR_RATES_HZ if not rates or r != rates[-1]]
+        rates.append(choices[int(rng.integers(len(choices)))])
+    return np.asarray(rates)[np.searchsorted(edges, t_s, side="right") - 1]
+
+
+# --- the case --------------------------------------------------------------------------------
+
+
+def _check(terms: Sequence[str], kind: str | None, duration_s: float, rate_Hz: float) -> str:
+    for t in terms:
+        if t not in CONCEALABLE:
+            raise InputError(f"concealed term '{t}' is not one of {', '.join(CONCEALABLE)}"
+                             + close_match_hint(t, CONCEALABLE))
+    if len(set(terms)) != len(terms) or len(terms) > 2:
+        raise InputError(f"concealed terms {list(terms)} must be at most two different ids")
+    if kind is None:
+        kinds = [k for k in ("ground", "aerial") if all(k in KINDS[t] for t in terms)]
+        kind = next((KINDS[t][0] for t in terms if KINDS[t][0] in kinds), kinds[0] if kinds
+                    else "ground")
+    if kind not in SCENARIOS:
+        raise InputError(f"kind = {kind!r} must be 'ground' or 'aerial'")
+    wrong = [t for t in terms if kind not in KINDS[t]]
+    if wrong:
+        raise InputError(f"term '{wrong[0]}' cannot be concealed on a {kind} robot "
+                         f"(only {', '.join(KINDS[wrong[0]])})")
+    if not (math.isfinite(duration_s) and duration_s >= 60.0):
+        raise InputError(f"duration_s = {duration_s!r} must be at least 60 s")
+    if not (0 < rate_Hz <= MAX_RATE_HZ):
+        raise InputError(f"rate_Hz = {rate_Hz!r} must be in (0, {MAX_RATE_HZ:g}] Hz")
+    return kind
+
+
+def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
+                   duration_s: float = 1800.0, rate_Hz: float = 10.0) -> ConcealedCase:
+    """One concealed-effect case (see the module docstring).
+
+    Parameters
+    ----------
+    terms : concealed term ids (``CONCEALABLE``), one or two; empty: a null case
+    seed : random seed; the same (terms, seed, kind, duration, rate) give the same case
+    kind : ``"ground"`` or ``"aerial"``; None: the terms' default (``KINDS``), ground for nulls
+    duration_s : length of the run [s] (at least 60)
+    rate_Hz : recording rate [Hz]
+
+    Returns
+    -------
+    ConcealedCase
+
+    Raises
+    ------
+    InputError
+        Unknown or repeated term, a term the kind cannot carry, bad duration or rate.
+    """
+    terms = tuple(terms)
+    kind = _check(terms, kind, duration_s, rate_Hz)
+    rng = np.random.default_rng([int(seed), ("ground", "aerial").index(kind),
+                                 *(CONCEALABLE.index(t) + 1 for t in terms)])
+    scenario_path = examples_dir("scenarios", "--scenarios") / SCENARIOS[kind]
+    base = read_toml(scenario_path, "scenario")
+    if kind == "aerial":
+        base["battery"]["rated_energy_Wh"] *= max(1.0, duration_s / AERIAL_PACK_S)
+    plan = _Plan(kind, duration_s, copy.deepcopy(base), copy.deepcopy(base))
+    base_ctx = context_of(scenario_from_dict(base, scenario_path))
+    plan.mass_over_omega_kg = base_ctx.scenario.robot.mass_kg / base_ctx.scenario.omega
+    plan.surface_names = base_ctx.world.map.surface_names
+    plan.route_style = "mixed" if kind == "ground" else "aerial"
+    for term in sorted(terms, key=_ROUTE_PRIORITY.index):  # the route of the most demanding
+        RECIPES[term](plan, rng)
+    if not terms:
+        _mis_set(plan, rng)
+    truth_ctx = context_of(scenario_from_dict(plan.truth_toml, scenario_path))
+    seen_ctx = context_of(scenario_from_dict(plan.seen_toml, scenario_path))
+    frame, offset_s = _drive(plan, truth_ctx, rng, duration_s, rate_Hz)
+    if "payload" in plan.truth:
+        plan.truth["payload"]["payload_from_s"] = plan.sim_truth["payload_from_s"] + offset_s
+    frame = _finish(plan, truth_ctx, frame, rng)
+    name = f"{case_label(terms, kind)}/seed{seed}"
+    recording = recording_from_frame(frame, source=name)
+    truth = {t: plan.truth[t] for t in terms}
+    return ConcealedCase(name, kind, seen_ctx, recording, frame, truth, plan.seen_toml,
+                         {k: float(v) for k, v in plan.measurement.items()})
+
+
+_ROUTE_PRIORITY = ("turning", "surface_rolling", "grade", "regen", "aero_drag", *(
+    t for t in CONCEALABLE if t not in ("turning", "surface_rolling", "grade", "regen",
+                                        "aero_drag")))
+"""Recipe order: the first sets the route style, later ones keep it (``route_style`` is only
+set by route-shaping terms, and the first such term wins)."""
+
+
+def _drive(plan: _Plan, ctx: Context, rng, duration_s: float, rate_Hz: float):
+    """Simulate the motion; returns the frame (true power, no noise) and the shift of the
+    simulator's clock onto the recording's [s]."""
+    robot = ctx.scenario.robot
+    # 30-60 s landed at each end, at most a sixth of a short run each
+    landed_s = (np.minimum(rng.uniform(30.0, 60.0, 2), duration_s / 6) if plan.landed
+                else np.zeros(2))
+    drive_s = duration_s - float(landed_s.sum())
+    lo = 0.8 if plan.route_style == "fast" else 0.6
+    v_range = (max(robot.v_min_mps, lo * robot.v_max_mps), robot.v_max_mps)
+    style = plan.route_style if plan.route_style != "fast" else "aerial"
+    route = _route(rng, ctx.world, style, 1.2 * robot.v_max_mps * drive_s, v_range)
+    truth = Truth(**plan.sim_truth)
+    sim = simulate(ctx, route, truth, seed=int(rng.integers(2**31)), sample_rate_Hz=rate_Hz,
+                   max_duration_s=drive_s)
+    frame = sim.frame
+    offset_s = 0.0
+    if plan.kind == "aerial":  # no hovering rest at the ends: stationary at the ends = landed
+        moving = np.flatnonzero(frame["v_mps"].to_numpy() > 0)
+        frame = frame.iloc[moving[0]:moving[-1] + 1].reset_index(drop=True)
+        offset_s = -float(frame["t_s"].iloc[0])
+    frame["t_s"] = frame["t_s"] + offset_s
+    frame["_airborne"] = True
+    if plan.landed:
+        frame, shift = _with_landed_ends(frame, ctx, landed_s, 1.0 / rate_Hz)
+        offset_s += shift
+    return frame, offset_s
+
+
+def _with_landed_ends(frame: pd.DataFrame, ctx: Context, landed_s, dt: float):
+    """Rows at rest before take-off and after landing; power: the model at rest (no hover)."""
+    def rest(n, row):
+        part = pd.DataFrame({c: np.repeat(frame[c].iloc[row], n) for c in frame.columns})
+        part[["v_mps", "yaw_rate_radps", "accel_mps2"]] = 0.0
+        part["_airborne"] = False
+        state = MotionState(speed_mps=np.zeros(n), sensor_rate_Hz=part["sensor_rate_Hz"]
+                            .to_numpy(float))
+        part["power_W"] = np.asarray(ctx.model.power_W(state), float) + np.zeros(n)
+        return part
+
+    n0, n1 = (max(1, round(s / dt)) for s in landed_s)
+    before, after = rest(n0, 0), rest(n1, -1)
+    t_end = float(frame["t_s"].iloc[-1])
+    before["t_s"] = np.arange(n0) * dt
+    shift = n0 * dt
+    after["t_s"] = t_end + shift + dt * np.arange(1, n1 + 1)
+    body = frame.assign(t_s=frame["t_s"] + shift)
+    return pd.concat([before, body, after], ignore_index=True), shift
+
+
+def _finish(plan: _Plan, ctx: Context, frame: pd.DataFrame, rng) -> pd.DataFrame:
+    """Conditions columns, concealed power and battery effects, soc, measurement effects."""
+    t = frame["t_s"].to_numpy(float)
+    dt = float(np.median(np.diff(t)))
+    frame["ambient_C"] = _smooth_walk(rng, t, 0.0, 35.0)
+    frame["battery_C"] = _battery_temperature_C(rng, t, plan.battery_cold)
+    if plan.sensor_schedule:
+        frame["sensor_rate_Hz"] = _sensor_schedule_Hz(rng, t)
+    power = frame["power_W"].to_numpy(float)
+    for effect in (*plan.power_effects, *plan.battery_effects):
+        power = effect(plan, frame, power, rng)
+    usable_J = ctx.scenario.battery.usable_J
+    frame["soc"] = np.clip(1.0 - np.cumsum(power) * dt / usable_J, 0.0, 1.0)
+    mean_W = float(np.mean(np.abs(power)))
+    lag_s = rng.uniform(0.1, 0.5)
+    recorded = np.interp(t - lag_s, t, power)
+    tau_s, ar_sd = rng.uniform(5.0, 20.0), rng.uniform(0.02, 0.05) * mean_W
+    phi = math.exp(-dt / tau_s)
+    shocks = rng.standard_normal(t.size) * ar_sd * math.sqrt(1 - phi**2)
+    shocks[0] = rng.standard_normal() * ar_sd
+    recorded = recorded + lfilter([1.0], [1.0, -phi], shocks)
+    white_sd = rng.uniform(0.01, 0.03) * mean_W
+    recorded = recorded + rng.standard_normal(t.size) * white_sd
+    frame["power_W"] = recorded
+    pos_sd = rng.uniform(0.03, 0.10) if plan.kind == "ground" else rng.uniform(0.2, 0.5)
+    plan.measurement = {"lag_s": lag_s, "ar_tau_s": tau_s, "ar_sd_W": ar_sd,
+                        "white_sd_W": white_sd, "position_sd_m": pos_sd}
+    for c in ("x_m", "y_m"):
+        frame[c] = frame[c] + rng.standard_normal(t.size) * pos_sd
+    keep = ["t_s", "x_m", "y_m", "z_m", "v_mps", "yaw_rate_radps", "accel_mps2", "power_W",
+            "soc", "sensor_rate_Hz", "ambient_C", "battery_C"]
+    return frame[keep].reset_index(drop=True)
+
+
+def suite_requests() -> list[tuple[tuple[str, ...], str | None]]:
+    """(terms, kind) of one seed of the suite: every term of ``CONCEALABLE`` (its default
+    kind), every pair of ``PAIRS``, then the ground and aerial null cases."""
+    return [*(((t,), None) for t in CONCEALABLE), *((p, None) for p in PAIRS),
+            ((), "ground"), ((), "aerial")]
+
+
+def case_label(terms: Sequence[str], kind: str | None) -> str:
+    """The name of a case without its seed: ``"wind+payload"``, ``"null-ground"``."""
+    return "+".join(terms) if terms else f"null-{kind or 'ground'}"
+
+
+def concealed_suite(seeds: Iterable[int], duration_s: float = 1800.0,
+                    rate_Hz: float = 10.0) -> list[ConcealedCase]:
+    """Every case of ``suite_requests`` for each seed (seed by seed, in that order)."""
+    return [concealed_case(terms, seed, kind=kind, duration_s=duration_s, rate_Hz=rate_Hz)
+            for seed in seeds for terms, kind in suite_requests()]
