@@ -199,8 +199,10 @@ def _add_model_term(toml: dict, term: str) -> None:
 
 
 def _ancillary(plan: _Plan, rng) -> None:
+    # s1 goes too: at the constant sensor rate of these runs s1 f_s is itself a constant draw,
+    # so a scenario keeping it would not have left the constant draw out
     for toml in (plan.truth_toml, plan.seen_toml):
-        toml["ancillary"].update(s0_W=0.0, compute_W=0.0, comm_W=0.0)
+        toml["ancillary"].update(s0_W=0.0, compute_W=0.0, comm_W=0.0, s1_W_per_Hz=0.0)
     share = rng.uniform(0.10, 0.35)
     plan.power_effects.append(lambda p, frame, power, _rng: power + _power_term_W(
         "ancillary", {"ancillary_W": p.truth["ancillary"]["ancillary_W"]}, frame))
