@@ -84,6 +84,18 @@ MAX_LAG_S = 1.0
 """Largest delay of the recorded power behind the motion that is corrected [s]: power
 meters and logging stacks lag the odometry by tenths of a second, which smears every
 transient (acceleration, turns) across the residual."""
+INFLATION_BLOCK_S = 120.0
+"""Batch length of the autocorrelation inflation [s]: batch means estimate the integrated
+autocorrelation time only when a batch is several times longer than it, and disturbances
+(gusts, a controller, traffic) last tens of seconds (calibration uses 30 s for its
+coefficient covariances; a diagnosis that would add a term on a shorter yardstick names
+slow noise)."""
+MIN_DRAG_SHARE = 0.02
+"""A wind is looked for only where drag draws at least this share of the mean power [-]: a
+sidewalk robot's drag at 1 m/s is a fraction of a watt, and a wind fitted to it would be a
+heading-dependent fluke (a slope met in one direction) scaled up to gale force."""
+MAX_WIND_MPS = 30.0
+"""Largest wind (or water current) a finding may claim [m/s]."""
 SCANNED = {"payload"}
 """Candidates whose change time is the best of a scan over the whole run: the largest of many
 nearly independent t statistics is itself large (about sqrt(2 ln n_eff)), so their t must
@@ -284,7 +296,7 @@ def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
     theta = _fit_rows(d, x, lo, hi, np.ones(n, bool), p)
     pred = x @ theta + d.offset
     resid = d.y - pred
-    tau = inflation_factor(resid, d.samples, 30.0)
+    tau = inflation_factor(resid, d.samples, INFLATION_BLOCK_S)
     s2 = float(np.mean(resid**2))
     gram = x.T @ x + np.diag(np.r_[d.prior_weight, np.zeros(x.shape[1] - p)])
     cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
@@ -539,8 +551,8 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
 
 def _wind_effect(d: Design, resid, rows) -> Effect:
     """An unreported wind: the drag term evaluated under a wind vector w, minus the
-    baseline's (no wind). w is fitted to the training rows' residual by Gauss-Newton; the
-    column's coefficient (the drag's share, ideally 1) is free but positive."""
+    baseline's (under the scenario's wind). w is fitted to the training rows' residual by
+    Gauss-Newton from the scenario's wind; what is judged is its change from that wind."""
     from scipy.optimize import least_squares
 
     drag_i = d.base.names.index("drag_kg_per_m")
@@ -558,9 +570,11 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     def fun(w):
         return (drag_with(w) - base_drag - resid)[moving]
 
-    sol = least_squares(fun, np.zeros(2), method="lm", x_scale=1.0)
+    assumed = np.array([np.mean(d.state.wind_x_mps), np.mean(d.state.wind_y_mps)], float)
+    sol = least_squares(fun, assumed, method="lm", x_scale=1.0)
     jac = sol.jac
-    s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, _sub(d, moving), 30.0))
+    s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, _sub(d, moving),
+                                                                 INFLATION_BLOCK_S))
     cov = np.linalg.pinv(jac.T @ jac) * s2
     speed_mps, from_deg = wind_speed_and_from(sol.x[0], sol.x[1])
     # delta method for speed and direction
@@ -568,12 +582,18 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     r2 = max(wx * wx + wy * wy, 1e-12)
     g_speed = np.array([wx, wy]) / np.sqrt(r2)
     g_dir = np.degrees(np.array([-wy, wx]) / r2)
-    extra = {"wind_x_mps": (float(wx), float(np.sqrt(cov[0, 0]))),
+    change = sol.x - assumed
+    g_change = change / max(float(np.hypot(*change)), 1e-12)
+    extra = {"wind_change_mps": (float(np.hypot(*change)),
+                                 float(np.sqrt(g_change @ cov @ g_change))),
+             "wind_x_mps": (float(wx), float(np.sqrt(cov[0, 0]))),
              "wind_y_mps": (float(wy), float(np.sqrt(cov[1, 1]))),
              "wind_speed_mps": (float(speed_mps), float(np.sqrt(g_speed @ cov @ g_speed))),
              "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir)))}
     col = (drag_with(sol.x) - base_drag)[:, None]
-    return Effect(col, ("wind_share",), np.array([0.0]), np.array([np.inf]), extra)
+    # the drag coefficient is the baseline's: the column enters at its own size (a share
+    # held at 1; a free share would let a fluke scale a small wind into a large effect)
+    return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra)
 
 
 def _sub(d: Design, mask) -> Samples:
@@ -639,6 +659,10 @@ def _needs_wind(d: Design):
         return "the wind is recorded"
     if "drag_kg_per_m" not in d.base.names or d.base.coefficient("drag_kg_per_m") <= 0:
         return "no drag term for a wind to act on"
+    drag_W = d.columns[:, d.base.names.index("drag_kg_per_m")] * d.base.coefficient(
+        "drag_kg_per_m")
+    if np.mean(np.abs(drag_W)) < MIN_DRAG_SHARE * np.mean(np.abs(d.y)):
+        return "drag is negligible at these speeds: a wind could not show"
     if not {"x_m", "y_m"} <= d.columns_of:
         return "no positions: the heading relative to a wind is unknown"
     return None
@@ -770,6 +794,13 @@ def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Tria
     # a term is significant when its strongest coefficient is: hvac's cooling or one surface
     # of several may rightly sit at 0
     t_max = float(np.max(t)) if own else 0.0
+    if cand.id == "wind":  # the wind vector's change from the scenario's is the parameter
+        change, sd = fit.extra.get("wind.wind_change_mps", (0.0, np.inf))
+        t_max = change / sd if sd > 0 else 0.0
+        speed = fit.extra.get("wind.wind_speed_mps", (0.0, 0.0))[0]
+        if speed > MAX_WIND_MPS:
+            return Trial(cand.id, float(gain), t_max, 0.0, False,
+                         f"a wind of {speed:.0f} m/s is beyond {MAX_WIND_MPS:.0f} m/s")
     bic_change = fit.bic(current.tau) - current.bic(current.tau)
     folds = int(np.count_nonzero(fit.fold_ss < current.fold_ss))
     reason = (f"held-out gain {100 * gain:.1f} % (need {100 * MIN_GAIN:.0f} %)" if gain < MIN_GAIN
