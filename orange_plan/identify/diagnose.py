@@ -261,6 +261,7 @@ class Fit:
     names : coefficient names (baseline, then candidates)
     fold_ss : held-out sum of squared errors per fold [W^2]
     effect_rms_W : RMS of each candidate's fitted power [W]
+    x : the design's columns on all samples (n, k) [W per unit]
     """
 
     theta: np.ndarray
@@ -274,6 +275,7 @@ class Fit:
     names: tuple
     fold_ss: np.ndarray
     effect_rms_W: dict
+    x: np.ndarray = None
 
     def bic(self, tau: float) -> float:
         """Bayesian information criterion with ``n / tau`` effective samples; compare fits
@@ -307,7 +309,7 @@ def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
         own = [i for i, nm in enumerate(names) if nm.startswith(f"{cand.id}.")]
         effect[cand.id] = float(np.sqrt(np.mean((x[:, own] @ theta[own]) ** 2)))
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
-               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, effect)
+               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, effect, x)
 
 
 def _stack(d: Design, chosen, rows):
@@ -539,11 +541,13 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     gain = np.where(valid, rg**2 / np.where(spread > 0, spread, 1.0), -np.inf)
     k = int(np.argmax(gain))
     t0 = float(d.t_s[k])
-    # the change time's uncertainty: the span of times whose fit is within one (inflated)
-    # standard deviation of the best, from the profile of the residual sum of squares
-    s2 = float(np.mean(r[rows] ** 2)) * 3.0
-    near = valid & (gain >= gain[k] - s2)
-    sd = float(np.std(d.t_s[near])) if near.any() else 0.0
+    # the change time's uncertainty: half the span of times whose fit is within one unit of
+    # chi-square (noise variance x autocorrelation time) of the best, from the profile of the
+    # residual sum of squares
+    tau = inflation_factor(resid, d.samples, INFLATION_BLOCK_S)
+    near = valid & (gain >= gain[k] - float(np.mean(r[rows] ** 2)) * tau)
+    dt = float(np.median(np.diff(d.t_s)))
+    sd = max(0.5 * float(np.ptp(d.t_s[near])), dt) if near.any() else dt
     col = (g * (d.t_s >= t0))[:, None]
     return Effect(col, ("payload_kg",), np.array([-np.inf]), np.array([np.inf]),
                   {"payload_from_s": (t0, sd)})
@@ -1085,12 +1089,11 @@ class Diagnosis:
 
     def contributions_W(self) -> dict[str, np.ndarray]:
         """Each found term's fitted power along the recording, by candidate id [W]."""
-        x, _lo, _hi, names, _extra = _stack(self.design, self.chosen,
-                                            np.ones(self.design.n, bool))
+        fit = self.improved
         out = {}
         for cand in self.chosen:
-            own = [i for i, nm in enumerate(names) if nm.startswith(f"{cand.id}.")]
-            out[cand.id] = x[:, own] @ self.improved.theta[own]
+            own = [i for i, nm in enumerate(fit.names) if nm.startswith(f"{cand.id}.")]
+            out[cand.id] = fit.x[:, own] @ fit.theta[own]
         return out
 
     def residual_per_second(self):
@@ -1166,7 +1169,7 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
             d = build_design(recording, ctx, grade_window_m=grade_window_m, lag_s=lag_s)
             chosen, _fits, trials = select(d, pool or candidates())
     baseline = fit_design(d, [])
-    improved = fit_design(d, chosen)
+    improved = polish(d, chosen, fit_design(d, chosen))
     resid = d.y - baseline.predicted_W
     findings = [_finding(d, c, chosen, improved, baseline) for c in chosen]
     conditions = residual_by_condition(d, resid, baseline.tau)
@@ -1181,6 +1184,45 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
         "; ".join(f.evidence for f in findings))
     result.model, result.scenario_changes = improved_model(d, chosen, improved)
     return result
+
+
+def polish(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Fit:
+    """Gauss-Newton rounds with the found terms inside the model: their columns were built at
+    the baseline's no-recovery clip, which a found force term moves (an inertia term makes
+    braking samples negative force: no power, not negative power). The found terms join the
+    baseline's, the Jacobian and the linearisation offset are evaluated at the joint
+    estimate, and the fit repeats; effects that are not terms (payload, wind, per-surface
+    rolling) stay candidates. Names keep the ``<candidate>.`` prefix of ``fit_design``."""
+    # hover stays a candidate: its column is zero on landed samples, its term is not
+    inside = [c for c in chosen if c.id in TERMS and c.id != "hover"]
+    if not inside:
+        return fit
+    others = [c for c in chosen if c not in inside]
+    values = dict(zip(fit.names, fit.theta))
+    terms = [make_term(c.id, d.world.map.surface_names) for c in inside]
+    owner = {name: c.id for c, t in zip(inside, terms) for name in t.coefficients}
+    model = d.base.with_terms([*d.base.terms, *terms],
+                              {n: values[f"{owner[n]}.{n}"] for n in owner})
+    model = model.with_theta({n: values[n] for n in d.base.names})
+    lower, upper = _bounds(model.names)
+    extra = len(model.names) - len(d.base.names)
+    polished = fit
+    for _ in range(rounds):
+        columns = np.asarray(model.power_jacobian(d.state), float)
+        if "hover" in owner.values():
+            i = model.names.index("hover_W")
+            columns[:, i] *= d.airborne
+        d2 = replace(d, base=model, columns=columns, lower=lower, upper=upper,
+                     prior_mean=np.r_[d.prior_mean, np.zeros(extra)],
+                     prior_weight=np.r_[d.prior_weight, np.zeros(extra)], cache={})
+        polished = fit_design(d2, others)
+        model = model.with_theta(dict(zip(model.names, polished.theta[:len(model.names)])))
+    names = tuple(f"{owner[n]}.{n}" if n in owner else n for n in polished.names)
+    effect = dict(polished.effect_rms_W)
+    for c in inside:
+        own = [i for i, n in enumerate(names) if n.startswith(f"{c.id}.")]
+        effect[c.id] = float(np.sqrt(np.mean((polished.x[:, own] @ polished.theta[own]) ** 2)))
+    return replace(polished, names=names, effect_rms_W=effect)
 
 
 def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -> Finding:

@@ -1,0 +1,102 @@
+"""Diagnosis proven on recordings where the effect is concealed (``sim.concealed``): for every
+vocabulary term, a 30-minute 10 Hz recording holding the effect while the scenario's model
+lacks it and no column labels it; pairs of effects; null cases with nothing missing (but a
+mis-set coefficient of a term the model has).
+
+Why it is stated this way: the truth is known only because the recording was generated, so
+the check is against the generator's own parameters (an independent reference: the generator
+adds hvac and the battery losses by its own formulas, the rest through the simulator), and a
+named term must be one that was concealed. Seeds 0 here; ``orange-plan bench diagnose`` runs
+seeds the tests never saw (101-103) and reports the totals in the README.
+
+Cases the diagnosis does not yet get right are marked ``xfail(strict=True)`` with the reason
+measured: if one starts passing, the mark must go (README "Diagnosis: measured").
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from orange_plan.identify.diagnose import diagnose
+from orange_plan.physics.terms import spec_id
+from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
+
+SEED = 0
+Z_MAX = 3.0
+"""A recovered parameter is within its uncertainty when |fitted - true| <= 3 sd."""
+
+NOT_YET = {
+    # measured at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
+    "aero_drag": "a drone at an even cruise speed: drag is a constant while moving, taken by "
+                 "the hover power's refit",
+    "regen": "regen is found, and turning too (held-out gain 3.4 %, t 4.0): a false positive",
+    "battery_resistance": "P^2 with a load that varies little is A^2 + 2AT + T^2: the refit "
+                          "ancillary and traction coefficients take it",
+    "surface_rolling+battery_resistance": "the battery loss is not separated (as alone)",
+    "hvac+inertia": "inertia's share of the power is below the 2 % held-out gain next to hvac",
+}
+NOT_FOUND = {"aero_drag", "battery_resistance"}
+PARAMS_NOT_YET = {
+    "inertia": "found at 16 +- 1.2 kg for 29.9: the baseline's rolling and grade take part of "
+               "the start-up power, and the standard error does not cover that",
+    "wind": "the baseline's drag coefficient absorbs the wind's mean part: speed 2.6 for 5.4 "
+            "m/s, direction right (311 for 312 deg)",
+    "turning": "27.5 +- 0.33 J/rad for 28.7 (3.4 sd): the turn spikes' shape after the lag",
+}
+
+
+def _case_names():
+    return [*CONCEALABLE, *("+".join(p) for p in PAIRS), "null-ground", "null-aerial"]
+
+
+def _case(name: str):
+    if name.startswith("null-"):
+        return concealed_case([], SEED, kind=name.removeprefix("null-"))
+    return concealed_case(name.split("+"), SEED)
+
+
+def _marks(name: str):
+    reason = NOT_YET.get(name)
+    return [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+
+
+@pytest.fixture(scope="module")
+def results():
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            case = _case(name)
+            cache[name] = (case, diagnose(case.recording, case.ctx))
+        return cache[name]
+
+    return get
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_marks(n)) for n in _case_names()])
+def test_diagnosis_names_exactly_the_concealed_terms(results, name):
+    case, result = results(name)
+    concealed = sorted(spec_id(t) for t in case.truth)
+    named = sorted(f.term for f in result.findings)
+    assert named == concealed, (name, [f.to_dict() for f in result.findings])
+    if concealed:
+        assert result.improved.cv_rmse_W < result.baseline.cv_rmse_W
+    else:
+        assert result.verdict == "no missing physics found" and result.evidence
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.xfail(
+    strict=True, reason=PARAMS_NOT_YET[n])] if n in PARAMS_NOT_YET else [])
+    for n in CONCEALABLE if n not in NOT_FOUND])
+def test_found_parameters_are_within_their_uncertainty(results, name):
+    case, result = results(name)
+    (finding,) = [f for f in result.findings if f.term == spec_id(name)]
+    checked = 0
+    for param, true in case.truth[name].items():
+        if param not in finding.params:
+            continue
+        value, sd = finding.params[param], finding.stderr[param]
+        diff = (value - true + 180) % 360 - 180 if param == "wind_from_deg" else value - true
+        assert abs(diff) <= Z_MAX * sd, (param, value, sd, true)
+        checked += 1
+    assert checked, (finding.params, case.truth)
