@@ -123,10 +123,10 @@ def sparse_regression(case) -> tuple[list[str], float]:
         warnings.simplefilter("ignore", ConvergenceWarning)
         for f in range(N_FOLDS):
             train = d.fold != f
-            model = LassoCV(cv=5, n_alphas=100, fit_intercept=False, max_iter=5000).fit(
+            model = LassoCV(cv=5, alphas=100, fit_intercept=False, max_iter=5000).fit(
                 xs[train], d.y[train])
             held[~train] = model.predict(xs[~train])
-        full = LassoCV(cv=5, n_alphas=100, fit_intercept=False, max_iter=5000).fit(xs, d.y)
+        full = LassoCV(cv=5, alphas=100, fit_intercept=False, max_iter=5000).fit(xs, d.y)
     coef = full.coef_[d.columns.shape[1]:]
     named = sorted({spec_id(o) for o, c in zip(owners, coef) if abs(c) > 0})
     return named, float(np.sqrt(np.mean((d.y - held) ** 2)))

@@ -80,6 +80,8 @@ MIN_T = 4.0
 MIN_EFFECT_SHARE = 0.01
 """Smallest RMS of a term's fitted power, as a share of the mean |power|, for it to be worth
 keeping [-]: a perfect model's residual is small, and 2 % of little is nothing."""
+GRADE_WINDOWS_M = (2.0, 5.0, 10.0, 20.0)
+"""Elevation smoothing windows tried for the grade [m] (``build_design``)."""
 MAX_LAG_S = 1.0
 """Largest delay of the recorded power behind the motion that is corrected [s]: power
 meters and logging stacks lag the odometry by tenths of a second, which smears every
@@ -136,6 +138,7 @@ class Design:
     columns_of : the recording's column names (what the candidates may read)
     scenario, world : the scenario and its world
     lag_s : delay of the recorded power behind the motion, corrected before fitting [s]
+    grade_window_m : elevation smoothing window of the grade [m] (None: the telemetry default)
     """
 
     samples: Samples
@@ -154,6 +157,7 @@ class Design:
     frame: object = None
     cache: dict = field(default_factory=dict)
     lag_s: float = 0.0
+    grade_window_m: float | None = None
 
     @property
     def y(self) -> np.ndarray:
@@ -347,13 +351,24 @@ def build_design(recording, ctx, *, grade_window_m: float | None = None,
                  lag_s: float | None = None) -> Design:
     """The recording against the scenario's model (terms with all-zero coefficients left out),
     its coefficients refitted with physical bounds, the recorded power advanced by ``lag_s``
-    (None: by the delay that best aligns it with the baseline, ``power_lag_s``).
+    (None: by the delay that best aligns it with the baseline, ``power_lag_s``), the grade
+    taken over ``grade_window_m`` (None: the one of ``GRADE_WINDOWS_M`` whose baseline
+    predicts held-out blocks best: GPS heights need metres of smoothing, a survey-grade
+    elevation map almost none, and a short steep ramp smoothed away reappears as a
+    residual that other terms would be blamed for).
 
     Raises
     ------
     InputError
         Too few samples, or a recording without power.
     """
+    if grade_window_m is not None or not recording.has("z_m"):
+        return _design_at(recording, ctx, grade_window_m, lag_s)
+    designs = [_design_at(recording, ctx, w, lag_s) for w in GRADE_WINDOWS_M]
+    return min(designs, key=lambda d: fit_design(d, []).cv_rmse_W)
+
+
+def _design_at(recording, ctx, grade_window_m, lag_s) -> Design:
     samples = recording_samples([recording], ctx, N_BLOCKS, grade_window_m)
     n = samples.power_W.size
     if n < 50:
@@ -390,6 +405,7 @@ def build_design(recording, ctx, *, grade_window_m: float | None = None,
     if lag_s:
         design = refit(replace(samples, power_W=_advance(samples.power_W, recording.t_s, lag_s)))
     design.lag_s = float(lag_s)
+    design.grade_window_m = grade_window_m
     return design
 
 
@@ -1139,6 +1155,7 @@ class Diagnosis:
             "candidates": [t.__dict__ for t in self.trials],
             "scenario_changes": self.scenario_changes,
             "power_lag_s": self.design.lag_s,
+            "grade_window_m": self.design.grade_window_m,
         }
 
 
@@ -1166,7 +1183,7 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
         improved = fit_design(d, chosen)
         lag_s = d.lag_s + power_lag_s(d, recording.t_s, improved.predicted_W)
         if abs(lag_s - d.lag_s) > 0.02:
-            d = build_design(recording, ctx, grade_window_m=grade_window_m, lag_s=lag_s)
+            d = build_design(recording, ctx, grade_window_m=d.grade_window_m, lag_s=lag_s)
             chosen, _fits, trials = select(d, pool or candidates())
     baseline = fit_design(d, [])
     improved = polish(d, chosen, fit_design(d, chosen))
