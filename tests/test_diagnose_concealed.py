@@ -29,7 +29,6 @@ NOT_YET = {
     # measured at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
     "aero_drag": "a drone at an even cruise speed: drag is a constant while moving, taken by "
                  "the hover power's refit",
-    "regen": "regen is found, and turning too: a false positive",
     "surface_rolling+battery_resistance": "the battery loss is not separated next to the "
                                           "surface's rolling",
 }
