@@ -27,17 +27,13 @@ Z_MAX = 3.0
 
 NOT_YET = {
     # measured at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
-    "aero_drag": "a drone at an even cruise speed: drag is a constant while moving, taken by "
-                 "the hover power's refit",
     "surface_rolling+battery_resistance": "the battery loss is not separated next to the "
-                                          "surface's rolling",
+                                          "surface's rolling (held-out gain under 2 %)",
 }
-NOT_FOUND = {"aero_drag"}
+NOT_FOUND: set[str] = set()
 PARAMS_NOT_YET = {
     "inertia": "found at 21.9 +- 0.8 kg for 29.9: the baseline's rolling and grade take part "
                "of the start-up power, and the standard error does not cover that",
-    "wind": "the baseline's drag coefficient absorbs the wind's mean part: speed 2.6 for 5.4 "
-            "m/s, direction right (311 for 312 deg)",
     "turning": "27.4 +- 0.3 J/rad for 28.7 (4.1 sd): the turn spikes' shape after the lag",
 }
 

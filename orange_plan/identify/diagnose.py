@@ -494,7 +494,9 @@ def _term_effect(term_id: str):
 
 def _term_columns(d: Design, term_id: str) -> Effect:
     term = make_term(term_id, d.world.map.surface_names)
-    model = d.base.with_terms([*d.base.terms, term], dict.fromkeys(term.coefficients, 0.0))
+    # a whisker of the term (not 0) sets the clip mask where the baseline has no traction
+    # force at all (a drone's drag: without it every sample would read "no force, no power")
+    model = d.base.with_terms([*d.base.terms, term], dict.fromkeys(term.coefficients, 1e-9))
     jac = np.asarray(model.power_jacobian(d.state), float)[:, len(d.base.names):]
     if term_id == "hover":  # aloft only: a landed drone idles
         jac = jac * d.airborne[:, None]
@@ -571,9 +573,11 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
 
 
 def _wind_effect(d: Design, resid, rows) -> Effect:
-    """An unreported wind: the drag term evaluated under a wind vector w, minus the
-    baseline's (under the scenario's wind). w is fitted to the training rows' residual by
-    Gauss-Newton from the scenario's wind; what is judged is its change from that wind."""
+    """An unreported wind: the drag term under a wind vector w in place of the baseline's
+    drag (under the scenario's wind). w and the drag coefficient k are fitted together to the
+    training rows (Gauss-Newton from the scenario's wind and the baseline's coefficient: the
+    baseline's refit took part of the wind's mean drag into its coefficient, so k must be
+    free to give it back); what is judged is the wind's change from the scenario's."""
     from scipy.optimize import least_squares
 
     drag_i = d.base.names.index("drag_kg_per_m")
@@ -582,28 +586,29 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     speed = np.asarray(d.state.speed_mps)
     moving = (speed > 0.1) & rows
 
-    def drag_with(w):
-        s = d.state.with_(wind_x_mps=w[0] + 0.0 * speed, wind_y_mps=w[1] + 0.0 * speed)
+    def drag_with(p):
+        s = d.state.with_(wind_x_mps=p[0] + 0.0 * speed, wind_y_mps=p[1] + 0.0 * speed)
         ax, ay = s.air_velocity()
         phi = np.sqrt(ax * ax + ay * ay) * (ax * s.dir_x + ay * s.dir_y)
-        return c * phi * speed
+        return p[2] * phi * speed
 
-    def fun(w):
-        return (drag_with(w) - base_drag - resid)[moving]
+    def fun(p):
+        return (drag_with(p) - base_drag - resid)[moving]
 
     assumed = np.array([np.mean(d.state.wind_x_mps), np.mean(d.state.wind_y_mps)], float)
-    sol = least_squares(fun, assumed, method="lm", x_scale=1.0)
+    sol = least_squares(fun, np.r_[assumed, c], method="lm",
+                        x_scale=np.array([1.0, 1.0, max(c, 1e-6)]))
     jac = sol.jac
     s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, _sub(d, moving),
                                                                  INFLATION_BLOCK_S))
-    cov = np.linalg.pinv(jac.T @ jac) * s2
+    cov = (np.linalg.pinv(jac.T @ jac) * s2)[:2, :2]
     speed_mps, from_deg = wind_speed_and_from(sol.x[0], sol.x[1])
     # delta method for speed and direction
-    wx, wy = sol.x
+    wx, wy = sol.x[:2]
     r2 = max(wx * wx + wy * wy, 1e-12)
     g_speed = np.array([wx, wy]) / np.sqrt(r2)
     g_dir = np.degrees(np.array([-wy, wx]) / r2)
-    change = sol.x - assumed
+    change = sol.x[:2] - assumed
     g_change = change / max(float(np.hypot(*change)), 1e-12)
     extra = {"wind_change_mps": (float(np.hypot(*change)),
                                  float(np.sqrt(g_change @ cov @ g_change))),
@@ -612,8 +617,8 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
              "wind_speed_mps": (float(speed_mps), float(np.sqrt(g_speed @ cov @ g_speed))),
              "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir)))}
     col = (drag_with(sol.x) - base_drag)[:, None]
-    # the drag coefficient is the baseline's: the column enters at its own size (a share
-    # held at 1; a free share would let a fluke scale a small wind into a large effect)
+    # the column enters at its own size (a share held at 1; a free share would let a fluke
+    # scale a small wind into a large effect)
     return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra)
 
 
@@ -815,9 +820,13 @@ def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Tria
     # a term is significant when its strongest coefficient is: hvac's cooling or one surface
     # of several may rightly sit at 0
     t_max = float(np.max(t)) if own else 0.0
-    if cand.id == "wind":  # the wind vector's change from the scenario's is the parameter
-        change, sd = fit.extra.get("wind.wind_change_mps", (0.0, np.inf))
-        t_max = change / sd if sd > 0 else 0.0
+    if cand.id == "wind":
+        # the wind vector is fitted together with the drag coefficient, so their standard
+        # errors share what the data cannot tell apart; the wind is judged as a whole by the
+        # likelihood ratio with the effective sample count, as a t: sqrt(n_eff ln(s0^2/s1^2))
+        n_eff = fit.predicted_W.size / current.tau
+        ratio = current.rmse_W**2 / max(fit.rmse_W**2, 1e-300)
+        t_max = float(np.sqrt(max(0.0, n_eff * np.log(ratio))))
         speed = fit.extra.get("wind.wind_speed_mps", (0.0, 0.0))[0]
         if speed > MAX_WIND_MPS:
             return Trial(cand.id, float(gain), t_max, 0.0, False,
