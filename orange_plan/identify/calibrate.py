@@ -431,7 +431,8 @@ class Calibrator:
             scale[scale == 0] = 1.0
             # the step in scaled units, bounded so that theta + step stays in range
             step_bounds = ((lower - theta)[free] * scale, (upper - theta)[free] * scale)
-            delta = lsq_linear(A / scale, B, bounds=step_bounds, method="bvls").x / scale
+            delta = lsq_linear(*reduced_ls(A / scale, B), bounds=step_bounds,
+                               method="bvls").x / scale
             step = np.zeros_like(theta)
             step[free] = delta
             theta = np.where(free, np.clip(self._damped(model, state, y, theta, step, theta0,
@@ -453,6 +454,20 @@ class Calibrator:
             if cost(trial) <= base:
                 return trial
         return theta
+
+
+def reduced_ls(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A k-row least-squares problem ``(m, r)`` with the same minimiser as ``min |a x - b|``
+    over any bounds (``|m x - r|^2`` differs by a constant): from the eigen-decomposition of
+    ``a'a``. One row per sample made each bounded step (``lsq_linear``) and a tall QR cost
+    seconds on a 10 Hz car trip; this costs one ``a'a``. Directions ``a`` does not see get a
+    zero row."""
+    w, v = np.linalg.eigh(a.T @ a)
+    root = np.sqrt(np.clip(w, 0.0, None))
+    seen = root > 1e-12 * max(float(root.max()), 1e-300)
+    rhs = np.zeros_like(root)
+    rhs[seen] = (v.T @ (a.T @ b))[seen] / root[seen]
+    return root[:, None] * v.T, rhs
 
 
 @dataclass(frozen=True)
