@@ -248,8 +248,10 @@ def test_real_bmw_trips_calibrate_physically():
     th = cal.theta_
     assert not cal.fit_report_.unphysical
     assert th["hvac_fraction"] == 1.0                      # held at its physical value
-    assert 100.0 < th["ancillary_W"] < 600.0               # 12 V loads; standstill shows ~0.4 kW
-    assert 0.0 < th["drift_W"] < 3000.0                    # cold-start extra power
+    # cold-start extra power: two trips show 220 +- 340 W, not told from its a priori 0, so
+    # it is held there (no prior) and the idle draw carries the mean of it
+    assert "drift_W" in cal.fit_report_.held_at_prior and th["drift_W"] == 0.0
+    assert 100.0 < th["ancillary_W"] < 800.0               # 12 V loads; standstill shows ~0.4 kW
     # inertia from the speed's derivative: rotating-mass factor m_eff / m within 1.0..1.15
     assert 1.0 < th["inertia_kg"] * ctx.scenario.omega / ctx.scenario.robot.mass_kg < 1.15
     assert 0.0 < th["heater_fraction"] < 1.0               # a share of the heating request

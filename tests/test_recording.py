@@ -143,7 +143,7 @@ def test_nothing_usable_left_is_refused():
 def test_nan_in_needed_column_drops_rows_and_reports():
     df = straight()
     df.loc[[4, 9], "power_W"] = np.nan
-    df.loc[12, "x_m"] = np.inf
+    df.loc[12, "x_m"] = np.nan  # (an infinite value is refused instead: test_recording_ranges)
     rec = recording_from_frame(df)
     issue = kinds(rec)["missing_value"]
     assert (issue.count, issue.first_row) == (3, 4)

@@ -13,6 +13,7 @@ from orange_plan.cli import (
     SCENARIO_HELP,
     JsonOpt,
     app,
+    err,
     handles_errors,
     out,
     print_json,
@@ -71,6 +72,7 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
         report["output"] = str(output)
     if as_json:
         print_json(report)
+        _warn(cal.fit_report_)
         return
     out.print(_table(cal))
     fit = cal.fit_report_
@@ -80,19 +82,34 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
               else "a priori: one recording shows nothing run-to-run")
     out.print(f"run-to-run discrepancy: {100 * fit.discrepancy_rel_sd:.1f} % of a run's energy "
               f"({source})")
-    if fit.unphysical:
-        out.print(f"warning: outside the physical range: {', '.join(fit.unphysical)}")
     if cal.surface_crr_:
         out.print("crr per surface: " + ", ".join(f"{k} {v:.4f}" for k, v in cal.surface_crr_.items()))
     if output is not None:
         out.print(f"wrote {output}")
+    _warn(fit)
+
+
+def _warn(fit) -> None:
+    """One stderr line per constraint outcome (also under --json: stdout stays one object)."""
+    if fit.held_at_prior:
+        err.print(f"warning: held at the prior (the data cannot pin them): "
+                  f"{', '.join(fit.held_at_prior)}", soft_wrap=True)
+    if fit.clipped:
+        err.print(f"warning: on the bound of the physical range (the data pull beyond it): "
+                  f"{', '.join(fit.clipped)}", soft_wrap=True)
+    if fit.unphysical:
+        err.print(f"warning: outside the physical range (fixed values): "
+                  f"{', '.join(fit.unphysical)}", soft_wrap=True)
 
 
 def _table(cal) -> Table:
     table = Table(title="Calibrated coefficients", header_style="bold")
-    for col in ("coefficient", "fitted", "stderr", "prior"):
-        table.add_column(col, justify="left" if col == "coefficient" else "right")
+    for col in ("coefficient", "fitted", "stderr", "prior", "note"):
+        table.add_column(col, justify="left" if col in ("coefficient", "note") else "right")
+    fit = cal.fit_report_
     for name, value in cal.theta_.items():
+        note = ("held at prior" if name in fit.held_at_prior
+                else "on bound" if name in fit.clipped else "")
         table.add_row(name, f"{value:.5g}", f"{cal.stderr_[name]:.3g}",
-                      f"{cal.prior_.get(name, float('nan')):.5g}")
+                      f"{cal.prior_.get(name, float('nan')):.5g}", note)
     return table

@@ -269,7 +269,7 @@ class EnergyModel:
         force = np.asarray(self.traction_force_N(state), dtype=float)
         speed = np.asarray(state.speed_mps, dtype=float)
         shape = np.broadcast(force, speed).shape
-        moving_on = np.broadcast_to(force > 0, shape)
+        moving_on = np.broadcast_to(force >= 0, shape)  # at F = 0: the side a push moves to
         columns = []
         for term in self.terms:
             phis = [np.broadcast_to(np.asarray(p, dtype=float), shape) for p in term.features(state)]

@@ -17,12 +17,47 @@ Rules
    ``x_m`` and ``y_m``, or ``v_mps``. A missing one is refused, naming it.
 3. ``text``: a value that is not a number in a numeric column of SPEC §3 is refused, naming
    the column, the first bad row and the value (empty cells are missing values, not text).
+3b. ``physical_range``: an infinite value in any numeric column of SPEC §3, or a finite one
+   outside that column's physical range (``PHYSICAL_RANGES``, table below), is refused with
+   one line naming the column, the value, its first row and the allowed range: no sensor
+   reads it, so the file is corrupt or in other units, and a value like 1e308 would only
+   turn energies into inf or NaN downstream. Missing values (empty cells, NaN) are not
+   checked here: rules 5 and 9 handle them. A derived ``power_W`` (voltage x current) is
+   held to the same range. The ranges are deliberately generous, so that no real robot,
+   vehicle or aircraft is refused:
+
+   ==================  ===================  ===============================================
+   column              allowed              why that is generous
+   ==================  ===================  ===============================================
+   power_W             [-1e7, 1e7] W        10 MW; an electric truck peaks near 1 MW, a
+                                            field robot below 10 kW (negative: charging)
+   voltage_V           [-2000, 2000] V      2 kV; traction packs are 400-900 V (either sign:
+                                            a log's sign convention is not judged here)
+   current_A           [-1e4, 1e4] A        10 kA; EVs peak at 1-2 kA
+   v_mps               [-150, 150] m/s      540 km/h; negative is reversing (rule 11)
+   accel_mps2          [-1e4, 1e4] m/s^2    1000 g; accelerometers saturate at 16-200 g
+   yaw_rate_radps      [-100, 100] rad/s    16 turns/s; gyros saturate at 35-70 rad/s
+   x_m, y_m            [-1e8, 1e8] m        2.5 x Earth's circumference
+   z_m                 [-1.2e4, 1e5] m      the Mariana Trench to the edge of space
+   ambient_C,          [-90, 150] C         record cold -89 C; a battery or a desert surface
+   battery_C                                stays below 100 C
+   soc                 [0, 1]               the SPEC's fraction (a percent is refused with a
+                                            hint to divide by 100)
+   wind_mps            [-150, 150] m/s      record gust 113 m/s (either sign tolerated)
+   wind_from_deg       [-3600, 3600] deg    any finite direction: it wraps, ten turns at most
+   payload_kg          [-1e6, 1e6] kg       1000 t; a heavy truck carries 40 t (negative:
+                                            lighter than the scenario's mass, as the
+                                            simulator writes a dropped load)
+   sensor_rate_Hz      [0, 1e6] Hz          1 MHz; lidars and cameras run below 100 kHz
+   ==================  ===================  ===============================================
+
 4. ``timestamps``: an infinite ``t_s``, ``|t_s| > 1e12`` (epoch milli/nanoseconds) or a span
    of more than 1e7 s (116 days) is refused with a hint to convert to seconds. Epoch
    *seconds* (first stamp beyond 1e7 s) are shifted so the first sample is at 0 s
    (``rebased``).
-5. ``missing_value``: a row with a missing or non-finite value in a needed column (``t_s``,
-   the power columns used, the motion columns used) is dropped.
+5. ``missing_value``: a row with a missing value (empty cell, NaN) in a needed column
+   (``t_s``, the power columns used, the motion columns used) is dropped (an infinite value
+   is refused by rule 3b).
 6. ``backwards``: a row stamped earlier than the latest earlier row is dropped (running
    maximum; after a clock reset the rows are dropped until time catches up).
 7. ``duplicate``: a row with the same stamp as the latest earlier row is dropped (the first
@@ -89,6 +124,27 @@ GAP_FACTOR = 5.0
 """An interval longer than this times the median interval is a gap [-]."""
 
 READ_EXTENSIONS = (".csv", ".csv.gz", ".parquet", ".pq")
+
+PHYSICAL_RANGES = {
+    "power_W": (-1e7, 1e7, "W"),
+    "voltage_V": (-2e3, 2e3, "V"),
+    "current_A": (-1e4, 1e4, "A"),
+    "v_mps": (-150.0, 150.0, "m/s"),
+    "accel_mps2": (-1e4, 1e4, "m/s^2"),
+    "yaw_rate_radps": (-100.0, 100.0, "rad/s"),
+    "x_m": (-1e8, 1e8, "m"),
+    "y_m": (-1e8, 1e8, "m"),
+    "z_m": (-1.2e4, 1e5, "m"),
+    "ambient_C": (-90.0, 150.0, "C"),
+    "battery_C": (-90.0, 150.0, "C"),
+    "soc": (0.0, 1.0, "(fraction)"),
+    "wind_mps": (-150.0, 150.0, "m/s"),
+    "wind_from_deg": (-3600.0, 3600.0, "deg"),
+    "payload_kg": (-1e6, 1e6, "kg"),
+    "sensor_rate_Hz": (0.0, 1e6, "Hz"),
+}
+"""Physical range (low, high, unit) of each numeric SPEC §3 column but ``t_s`` (rule 4):
+rule 3b's table, with why each is generous."""
 
 
 @dataclass(frozen=True)
@@ -285,6 +341,7 @@ def recording_from_frame(df: pd.DataFrame, source: str = "<frame>") -> Recording
     issues = [DataIssue("import", cols.n, -1, str(note))
               for note in df.attrs.get("import_notes", ())]
     _check_timestamps(cols, source, issues)
+    _check_ranges(cols, source)
     _drop_missing(cols, _needed_columns(cols), issues)
     _drop_unordered(cols, issues)
     if cols.n < 2:
@@ -296,7 +353,7 @@ def recording_from_frame(df: pd.DataFrame, source: str = "<frame>") -> Recording
     t = cols["t_s"]
     gap_threshold_s = _gap_threshold(t, issues, cols.rows)
     pieces = gap_free_pieces(t, gap_threshold_s)
-    _derive(cols, pieces, issues)
+    _derive(cols, pieces, issues, source)
     frame = pd.DataFrame(_ordered(cols.data), copy=False)
     frame.attrs.update(df.attrs)
     return Recording(frame, source, tuple(issues), gap_threshold_s)
@@ -415,6 +472,30 @@ def _check_timestamps(cols: Columns, source: str, issues: list) -> None:
                                 "first sample is at 0 s"))
 
 
+def _check_ranges(cols: Columns, source: str, names=tuple(PHYSICAL_RANGES),
+                  derived: str = "") -> None:
+    """Rule 3b: refuse an infinite or out-of-range value (missing values are left to rules
+    5 and 9), naming the column, the value, its first row and the allowed range."""
+    for col in names:
+        if col not in cols:
+            continue
+        low, high, unit = PHYSICAL_RANGES[col]
+        v = cols[col]
+        bad = np.isinf(v) | (v < low) | (v > high)  # NaN compares false: not flagged
+        if not bad.any():
+            continue
+        i = int(np.flatnonzero(bad)[0])
+        row = int(cols.rows[i])
+        hint = ""
+        if col == "soc" and 1.0 < np.nanmax(v[np.isfinite(v)]) <= 100.0:
+            hint = "; soc is a fraction 0..1: a percentage must be divided by 100"
+        raise RecordingError(
+            f"{source}: column '{col}'{derived} = {v[i]:.6g} at row {row} (CSV line {row + 2}) "
+            f"is outside its physical range [{low:.6g}, {high:.6g}] {unit}"
+            f"{hint}; fix or remove the value (README: recordings)"
+        )
+
+
 def _needed_columns(cols) -> list[str]:
     needed = ["t_s"]
     needed += ["power_W"] if "power_W" in cols else ["voltage_V", "current_A"]
@@ -483,12 +564,13 @@ def _gap_threshold(t: np.ndarray, issues: list, rows: np.ndarray) -> float:
 # --- derived channels ---------------------------------------------------------------------------
 
 
-def _derive(cols: Columns, pieces: list[slice], issues: list) -> None:
+def _derive(cols: Columns, pieces: list[slice], issues: list, source: str) -> None:
     t = cols["t_s"]
     n, w = cols.n, window_samples(t)
     has_xy = "x_m" in cols and "y_m" in cols
     if "power_W" not in cols:
         cols["power_W"] = cols["voltage_V"] * cols["current_A"]
+        _check_ranges(cols, source, ("power_W",), " (voltage_V x current_A)")
         issues.append(DataIssue("derived", n, 0, "power_W = voltage_V x current_A"))
     if "v_mps" not in cols:
         xs = smooth_pieces(cols["x_m"], w, pieces)
