@@ -194,6 +194,8 @@ def test_cli_json_follows_spec_6_and_o_carries_the_term_into_predict(ctx, tmp_pa
 @pytest.mark.parametrize(("content", "message"), [
     ("t_s,v_mps\n0,1\n1,1\n", "power"),
     ("not a table at all", ""),
+    ("t_s,power_W,v_mps\n" + "".join(f"{i},{1e308 if i == 3 else 5},1\n" for i in range(60)),
+     "power_w"),
 ])
 def test_cli_refuses_malformed_input_in_one_line(ctx, tmp_path, content, message):
     rec = tmp_path / "bad.csv"
