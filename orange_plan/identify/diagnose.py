@@ -1132,16 +1132,19 @@ class Diagnosis:
         return edges, before, after
 
     def feature_panels(self) -> list[tuple]:
-        """What to plot the residual against: ``(label, feature, baseline residual, fitted
-        term or None, name)`` per found term (at most three); with none found, the best
-        candidate's feature, nothing fitted."""
+        """What to plot the residual against: ``(label, feature, residual, fitted term or
+        None, name)`` per found term (at most three), the residual being the improved model's
+        with that term taken out (a partial residual: the term's own signal, not the other
+        found terms'); with none found, the baseline's residual against the best candidate's
+        feature, nothing fitted."""
         d = self.design
         resid = d.y - self.baseline.predicted_W
         fitted = self.contributions_W() if self.chosen else {}
         panels = []
         for cand in self.chosen[:3]:
             values, label = cand.feature(d)
-            panels.append((label, np.asarray(values, float), resid, fitted[cand.id], cand.id))
+            partial = d.y - self.improved.predicted_W + fitted[cand.id]
+            panels.append((label, np.asarray(values, float), partial, fitted[cand.id], cand.id))
         if panels:
             return panels
         best = max(self.trials, key=lambda t: t.gain, default=None)

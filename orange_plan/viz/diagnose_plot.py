@@ -34,7 +34,8 @@ def diagnosis_figure(result, title: str = ""):
         ax = fig.add_subplot(grid[1, k])
         pick = np.linspace(0, d.n - 1, min(d.n, MAX_POINTS)).astype(int)
         ax.scatter(feature[pick], resid[pick], s=3, color="0.55", alpha=0.35,
-                   label="baseline residual", rasterized=True)
+                   label="residual without this term" if fitted is not None
+                   else "baseline residual", rasterized=True)
         centres, means = _binned(feature, resid)
         ax.plot(centres, means, "o-", color="0.1", ms=3, lw=1.2, label="residual, binned mean")
         if fitted is not None:
