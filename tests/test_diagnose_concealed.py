@@ -93,3 +93,41 @@ def test_found_parameters_are_within_their_uncertainty(results, name):
         assert abs(diff) <= Z_MAX * sd, (param, value, sd, true)
         checked += 1
     assert checked, (finding.params, case.truth)
+
+
+@pytest.mark.parametrize("name", ["hvac", "battery_temperature", "wind"])
+def test_o_carries_the_found_physics_into_predict_and_planning(results, name, tmp_path):
+    """``diagnose -o`` writes a scenario that loads, holds the found term (or the wind), and
+    predicts the recording better than the scenario it came from; planning's path energy
+    under it charges the term (reach and plan read the same model)."""
+    import json
+
+    import numpy as np
+
+    from orange_plan.context import load_context
+    from orange_plan.identify.scenario_out import write_calibrated_scenario
+    from orange_plan.physics.pathcost import path_energy
+
+    case, result = results(name)
+    scenario_path, recording_path = case.write(tmp_path)
+    out = write_calibrated_scenario(case.ctx.scenario, result.model, tmp_path / "found.toml",
+                                    {k: v for k, v in result.scenario_changes.items() if "." in k})
+    ctx = load_context(out)
+    if name == "wind":
+        assert ctx.conditions.wind_xy_mps != case.ctx.conditions.wind_xy_mps
+    else:
+        assert {"hvac": "hvac_ambient"}.get(name, name) in ctx.model.term_ids
+    from conftest import run_cli
+
+    rmse = []
+    for scenario in (scenario_path, out):
+        code, stdout, _ = run_cli("predict", recording_path, "--scenario", scenario, "--json")
+        assert code == 0
+        rmse.append(json.loads(stdout)["rmse_W"])
+    assert rmse[1] < 0.8 * rmse[0], rmse
+    home = np.asarray(ctx.world.home_xy_m, float)
+    xy = np.array([home, home + [10.0, 0.0]])
+    if ctx.world.segments_free(xy[:1], xy[1:]).all():
+        before = path_energy(case.ctx.model, case.ctx.world, xy, 1.0, case.ctx.conditions)
+        after = path_energy(ctx.model, ctx.world, xy, 1.0, ctx.conditions)
+        assert after.total_J != pytest.approx(before.total_J, rel=1e-6)

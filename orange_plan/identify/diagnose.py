@@ -615,7 +615,9 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
              "wind_x_mps": (float(wx), float(np.sqrt(cov[0, 0]))),
              "wind_y_mps": (float(wy), float(np.sqrt(cov[1, 1]))),
              "wind_speed_mps": (float(speed_mps), float(np.sqrt(g_speed @ cov @ g_speed))),
-             "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir)))}
+             "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir))),
+             "drag_kg_per_m": (float(sol.x[2]), float(np.sqrt(
+                 (np.linalg.pinv(jac.T @ jac) * s2)[2, 2])))}
     col = (drag_with(sol.x) - base_drag)[:, None]
     # the column enters at its own size (a share held at 1; a free share would let a fluke
     # scale a small wind into a large effect)
@@ -1287,6 +1289,8 @@ def _physical_params(d: Design, cand: Candidate, params: dict, stderr: dict):
     if cand.id == "wind":
         params.pop("wind_share", None)
         stderr.pop("wind_share", None)
+        params.pop("wind_change_mps", None)
+        stderr.pop("wind_change_mps", None)
     return params, stderr
 
 
@@ -1360,6 +1364,10 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit) -> tuple[Energy
             wx = fit.extra["wind.wind_x_mps"][0]
             wy = fit.extra["wind.wind_y_mps"][0]
             speed, from_deg = wind_speed_and_from(wx, wy)
+            # the drag under that wind is the one fitted with it (the baseline's coefficient
+            # had taken part of the wind's mean drag)
+            values["drag_kg_per_m"], sd_drag = fit.extra["wind.drag_kg_per_m"]
+            variances["drag_kg_per_m"] = sd_drag**2
             changes["environment.wind_speed_mps"] = float(speed)
             changes["environment.wind_from_deg"] = float(from_deg) % 360.0
         else:
