@@ -91,6 +91,7 @@ class TourSetup:
     point_vertex: np.ndarray  # (P,) roadmap vertex of each point
     roadmap: Roadmap  # the reach roadmap extended by the candidates' end points
     to_home: EnergyField  # energy to home from every vertex of the extended roadmap
+    # (a warm setup's has no gradient columns: ``warm_setup``)
     # the returns' drives, shared by the warm setups made from this one (``returns``)
     returns: DrivenReturns = field(default_factory=DrivenReturns, compare=False, repr=False)
 
@@ -282,7 +283,8 @@ def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
                       covered=covered)
     predecessors = np.pad(setup.predecessors, ((0, 0), (0, 1)), constant_values=-9999)
     predecessors[0] = pred[0]
-    to_home = energy_field(roadmap, roadmap.home_index, towards=True)
+    # a replan reads the field's energies and paths only (returns are re-evaluated exactly)
+    to_home = energy_field(roadmap, roadmap.home_index, towards=True, with_gradient=False)
     warm = replace(reach, fast=fast, exact=exact, roadmap=roadmap, start_index=vertex,
                    energy_used_J=float(start.energy_used_J))
     return replace(setup, reach=warm, problem=problem, predecessors=predecessors,
