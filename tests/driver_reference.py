@@ -13,30 +13,7 @@ from orange_plan.physics.profile import CREEP_FRACTION, STOP_EVERY_S
 
 
 class ReferenceDriver:
-    """Point-mass kinematics along a path with acceleration limits and duty-cycle stops.
-
-    Parameters
-    ----------
-    edges_m : horizontal arclength at the sub-step edges, shape (n + 1,) [m]
-    step_speed : cruise speed along the path per sub-step, shape (n,) [m/s]
-    step_cos : cosine of each sub-step's grade, shape (n,) [-]
-    accel_max : acceleration and braking limit [m/s^2]
-    dt : time step [s]
-    duty : duty cycle D, moving time / mission time [-]
-    stop_every_s : moving time between stops [s]
-    repeat : drive the path again and again (a lap; no end) instead of once
-
-    Notes
-    -----
-    Speeds are along the path; the horizontal arclength advances by ``v cos(grade) dt`` (the
-    mean of the step's start and end speeds). Each step's speed change is
-    ``clip(target - v, -a dt, a dt)`` with target the sub-step's cruise speed, 0 while
-    stopping, and near the end ``sqrt(2 a remaining) - a dt`` (brake to rest on arrival; the
-    ``- a dt`` is one step of anticipation, as the speed follows the cap with a step's lag).
-    Stops: after ``stop_every_s`` of moving, brake to rest and wait until ``t >= moving / D``;
-    at the end of a single run the same wait once at rest, so the run's moving time / mission
-    time is D (SPEC §7's mission time, moving time / D).
-    """
+    """``physics.profile.Driver`` interpreted (its Parameters and Notes hold here too)."""
 
     def __init__(self, edges_m, step_speed, step_cos, accel_max, dt, duty,
                  stop_every_s=STOP_EVERY_S, repeat=False):

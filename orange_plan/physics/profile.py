@@ -349,12 +349,9 @@ def _drive_once(steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float,
     return driver.run(np.iinfo(np.int64).max)
 
 
-def _drive_each(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
-                stop_every_s) -> list[dict]:
+def _check_lengths(steps_list, step_speed_list) -> None:
     if len(steps_list) != len(step_speed_list):
         raise ValueError(f"{len(steps_list)} paths but {len(step_speed_list)} speed arrays")
-    return [_drive_once(st, v, accel_max_mps2, duty_cycle, dt_s, stop_every_s)
-            for st, v in zip(steps_list, step_speed_list)]
 
 
 def _yaw_rate(steps, kin: dict, dt_s: float) -> np.ndarray:
@@ -364,25 +361,13 @@ def _yaw_rate(steps, kin: dict, dt_s: float) -> np.ndarray:
     return yaw
 
 
-def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, conditions: Conditions,
-                dt_s: float = SAMPLE_DT_S,
-                stop_every_s: float = STOP_EVERY_S) -> list[tuple[dict, MotionState]]:
-    """``drive_path`` of many independent paths (parameters as there, ``steps_list`` and
-    ``step_speed_list`` one entry per path)."""
-    if len(steps_list) != len(step_speed_list):
-        raise ValueError(f"{len(steps_list)} paths but {len(step_speed_list)} speed arrays")
-    return [drive_path(st, v, accel_max_mps2, conditions, dt_s, stop_every_s)
-            for st, v in zip(steps_list, step_speed_list)]
-
-
 def drive_returns(steps_list, step_speed_list, accel_max_mps2: float, duty_cycle: float,
                   dt_s: float = SAMPLE_DT_S, stop_every_s: float = STOP_EVERY_S) -> list[dict]:
     """The kinematics of many independent single runs, one dict per path: ``Driver.run``'s
     ``v``, ``accel`` and ``step`` and the yaw rate ``yaw_radps`` of ``drive_path`` (what
     ``driven_energies_and_gradients`` reads). They do not depend on the energy model, so a
     caller may keep them across models."""
-    if len(steps_list) != len(step_speed_list):
-        raise ValueError(f"{len(steps_list)} paths but {len(step_speed_list)} speed arrays")
+    _check_lengths(steps_list, step_speed_list)
     kins = [_drive_once(st, v, accel_max_mps2, duty_cycle, dt_s, stop_every_s)
             for st, v in zip(steps_list, step_speed_list)]
     return [{"v": kin["v"], "accel": kin["accel"], "step": kin["step"],
@@ -395,7 +380,7 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
                                    ) -> tuple[np.ndarray, np.ndarray]:
     """Profile energy [J], shape (n,), and its gradient d/d theta, shape (n, k), of many paths:
     per path ``profile_energy(...).total_J`` and ``profile_gradient(...)`` (parameters as
-    ``drive_paths``)."""
+    ``drive_path``, one steps and speed array per path)."""
     kins = drive_returns(steps_list, step_speed_list, accel_max_mps2, conditions.duty_cycle,
                          dt_s, stop_every_s)
     return driven_energies_and_gradients(model, steps_list, kins, conditions, dt_s)
