@@ -110,7 +110,7 @@ class Driver:
             chunks = [[np.empty(0)] * 4 + [np.empty(0, dtype=np.int64)]]
         t, s, v, accel, step = (np.concatenate(c) if len(chunks) > 1 else c[0].copy()
                                 for c in zip(*chunks))
-        return {"t": t, "s": s, "v": v, "accel": accel, "step": step.astype(int)}
+        return {"t": t, "s": s, "v": v, "accel": accel, "step": step.astype(int, copy=False)}
 
 
 _MOVE, _BRAKE, _STOP = 0, 1, 2
