@@ -182,3 +182,28 @@ def test_compiled_driver_samples_are_the_interpreted_ones_bit_for_bit(seed, repe
         assert (compiled.s, compiled.v, compiled.t, compiled.moving, compiled.finished) == (
             interpreted.s, interpreted.v, interpreted.t, interpreted.moving,
             interpreted.finished)
+
+
+def test_drive_compiles_in_memory_when_no_cache_location_is_writable(monkeypatch):
+    """numba refuses ``cache=True`` (RuntimeError) when it can write its cache nowhere: the
+    drive is then compiled for this process only, with the same samples."""
+    import numba
+
+    from orange_plan.physics import profile
+
+    real_njit = numba.njit
+
+    def refusing_cache(*args, **kwargs):
+        if kwargs.get("cache"):
+            raise RuntimeError("cannot cache function: no locator available")
+        return real_njit(*args, **kwargs)
+
+    monkeypatch.setattr(numba, "njit", refusing_cache)
+    profile._compiled_drive_steps.cache_clear()
+    try:
+        args = (np.linspace(0.0, 30.0, 31), np.full(30, 1.2), np.ones(30), 0.5, 0.1, 0.8, 10.0)
+        got, want = Driver(*args).run(10_000), ReferenceDriver(*args).run(10_000)
+        for key in want:
+            np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    finally:
+        profile._compiled_drive_steps.cache_clear()

@@ -198,7 +198,10 @@ def _compiled_drive_steps():
     machine code on disk next to this module, so later processes load it instead of compiling."""
     from numba import njit
 
-    return njit(cache=True, nogil=True)(_drive_steps)
+    try:
+        return njit(cache=True, nogil=True)(_drive_steps)
+    except RuntimeError:  # numba found no writable cache location: compile in memory instead
+        return njit(nogil=True)(_drive_steps)
 
 
 def spread_yaw_rate(heading, last_heading, carry, k: int, dt: float):
