@@ -16,6 +16,8 @@ def test_bench_replan_quick(tmp_path):
     result = json.loads(stdout)
     assert result["replans"] == 3 and result["all_safe"] is True
     assert 0 < result["median_s"] <= result["p95_s"] <= result["max_s"]
+    assert 0 < result["cpu_median_s"] <= result["cpu_p95_s"]
+    assert len(result["load_before"]) == 3 == len(result["load_after"])
     assert result["target_p95_s"] == 0.25
 
 

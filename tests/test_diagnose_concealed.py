@@ -126,7 +126,7 @@ def test_o_carries_the_found_physics_into_predict_and_planning(results, name, tm
         rmse.append(json.loads(stdout)["rmse_W"])
     assert rmse[1] < 0.8 * rmse[0], rmse
     home = np.asarray(ctx.world.home_xy_m, float)
-    xy = np.array([home, home + [10.0, 0.0]])
+    xy = np.array([home, home + np.array([10.0, 0.0])])
     if ctx.world.segments_free(xy[:1], xy[1:]).all():
         before = path_energy(case.ctx.model, case.ctx.world, xy, 1.0, case.ctx.conditions)
         after = path_energy(ctx.model, ctx.world, xy, 1.0, ctx.conditions)

@@ -110,3 +110,46 @@ def test_two_opt_undoes_a_crossing():
 def test_nothing_fits_gives_an_empty_tour():
     p = random_instance(3, budget_share=0.0)
     assert ort.solve(p).nodes == []
+
+
+def insert_greedily_repricing(p: ort.Orienteering, nodes):
+    """The greedy insertion pricing every gap anew after each insertion (the rule
+    ``insert_greedily`` keeps its prices by): the reference of the test below."""
+    nodes = list(nodes)
+    energy, time = ort.tour_cost(p, nodes)
+    mask = ort.covered_mask(p, nodes)
+    in_tour = np.zeros(p.n, bool)
+    in_tour[[n for n, _ in nodes]] = True
+    while True:
+        value = p.cells @ (~mask).astype(float) * p.cell_area_m2
+        cand = np.flatnonzero(~in_tour & (value > 0))
+        if len(cand) == 0:
+            return nodes
+        d_J, d_s = ort.insertion_deltas(p, nodes, cand)
+        d_J = np.where((energy + d_J <= p.budget_J) & (time + d_s <= p.budget_s), d_J, np.inf)
+        flat = d_J.reshape(len(cand), -1)
+        best = np.argmin(flat, axis=1)
+        best_J = flat[np.arange(len(cand)), best]
+        if not np.isfinite(best_J).any():
+            return nodes
+        k = int(np.argmax(np.where(np.isfinite(best_J),
+                                   value[cand] / np.maximum(best_J, 1e-9), -np.inf)))
+        o, pos = divmod(int(best[k]), len(nodes) + 1)
+        nodes.insert(pos, (int(cand[k]), o))
+        energy += float(best_J[k])
+        time += float(d_s[k, o, pos])
+        in_tour[cand[k]] = True
+        mask[p.cells[cand[k]].indices] = True
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 12), share=st.floats(0.05, 1.5),
+       time_share=st.floats(0.3, 2.0), lanes=st.booleans(), start_with=st.integers(0, 3))
+def test_kept_insertion_prices_choose_what_repricing_chooses(seed, n, share, time_share, lanes,
+                                                             start_with):
+    """From an empty or partial tour, under energy and time budgets: the same insertions in
+    the same order and directions as pricing every gap anew."""
+    p = random_instance(seed, n=n, budget_share=share, lanes=lanes)
+    p = ort.Orienteering(**{**p.__dict__, "budget_s": time_share * p.budget_J / 1.5})
+    nodes = [(i, i % 2) for i in range(min(start_with, n))]
+    assert ort.insert_greedily(p, nodes) == insert_greedily_repricing(p, nodes)

@@ -75,6 +75,16 @@ def test_field_gradient_reproduces_energy(setup):
     assert np.allclose(f.gradient[ok] @ ctx.model.theta, f.energy_J[ok], rtol=1e-9, atol=1e-6)
 
 
+def test_field_without_gradient_has_the_same_energies_and_paths(setup):
+    _, _, _, rm = setup
+    for towards in (True, False):
+        full = energy_field(rm, rm.home_index, towards)
+        lean = energy_field(rm, rm.home_index, towards, with_gradient=False)
+        assert np.array_equal(lean.energy_J, full.energy_J)
+        assert np.array_equal(lean.next_vertex, full.next_vertex)
+        assert lean.gradient.shape == (rm.n_vertices, 0)
+
+
 def test_add_vertices_connects_new_points(setup):
     _, fast, _, rm = setup
     more = add_vertices(fast, rm, np.array([[30.0, 20.0], [31.0, 21.0]]))

@@ -10,7 +10,7 @@ import sys
 from conftest import REPO
 
 HEAVY = ("scipy", "casadi", "ompl", "matplotlib", "pandas", "pyarrow", "rasterio", "pyulog",
-         "rosbags", "shapely")
+         "rosbags", "shapely", "numba")
 
 
 def loaded_after(code: str) -> set[str]:

@@ -18,10 +18,9 @@ out the duty cycle there too, so the mission time is the moving time / D (SPEC Â
 
 from __future__ import annotations
 
+import functools
 import math
-from bisect import bisect_right
 from dataclasses import dataclass
-from itertools import pairwise
 
 import numpy as np
 
@@ -72,14 +71,14 @@ class Driver:
 
     def __init__(self, edges_m, step_speed, step_cos, accel_max, dt, duty,
                  stop_every_s=STOP_EVERY_S, repeat=False):
-        self.edges = [float(e) for e in edges_m]
-        self.length = self.edges[-1]
-        self.speed = [float(v) for v in step_speed]
-        self.cos = [float(c) for c in step_cos]
+        self.edges = np.ascontiguousarray(edges_m, dtype=float)
+        self.length = float(self.edges[-1])
+        self.speed = np.ascontiguousarray(step_speed, dtype=float)
+        self.cos = np.ascontiguousarray(step_cos, dtype=float)
         self.a, self.dt, self.duty = float(accel_max), float(dt), float(duty)
-        self.every, self.repeat = float(stop_every_s), repeat
+        self.every, self.repeat = float(stop_every_s), bool(repeat)
         self.s = self.v = self.t = self.moving = 0.0
-        self.phase, self.next_stop = "move", self.every
+        self.phase, self.next_stop = _MOVE, self.every
         self.arrived = self.finished = False
 
     def run(self, n: int) -> dict:
@@ -87,74 +86,123 @@ class Driver:
         (horizontal arclength driven, laps included), ``v`` [m/s], ``accel`` [m/s^2] over the
         sample, ``step`` (sub-step index).
 
-        One Python iteration per sample is the planner's inner loop (every walk, return and
-        replan is driven), so the state lives in locals and the sub-step is a pointer that
-        only moves forwards (the arclength never decreases; laps look it up again): the
-        arithmetic is the Notes' rule, in the same order as before this loop was inlined.
+        Every walk, return and replan is driven, one iteration per sample: the loop is
+        ``_drive_steps``, compiled (``_compiled_drive_steps``), in chunks so that a large
+        ``n`` does not allocate what a short path never fills.
         """
-        t_out, s_out, v_out, a_out, j_out = [], [], [], [], []
-        edges, speed, cos = self.edges, self.speed, self.cos
-        n_steps, length, repeat = len(speed), self.length, self.repeat
-        a, dt, duty, every = self.a, self.dt, self.duty, self.every
-        a_dt, two_a = a * dt, 2 * a
-        stops = duty < 1.0
-        s, v, t, moving = self.s, self.v, self.t, self.moving
-        phase, next_stop, arrived = self.phase, self.next_stop, self.arrived
-        finished = self.finished
-        j = min(bisect_right(edges, s % length if repeat else min(s, length)) - 1, n_steps - 1)
-        last_lap = s % length if repeat else 0.0
-        for _ in range(n):
-            if finished:
+        kernel = _compiled_drive_steps()
+        chunks = []
+        left = int(n)
+        while left > 0 and not self.finished:
+            size = min(left, _RUN_CHUNK)
+            out = (np.empty(size), np.empty(size), np.empty(size), np.empty(size),
+                   np.empty(size, dtype=np.int64))
+            (k, self.s, self.v, self.t, self.moving, self.phase, self.next_stop, self.arrived,
+             self.finished) = kernel(
+                self.edges, self.speed, self.cos, self.a, self.dt, self.duty, self.every,
+                self.repeat, size, self.s, self.v, self.t, self.moving, self.phase,
+                self.next_stop, self.arrived, self.finished, *out)
+            chunks.append([a[:k] for a in out])
+            left -= k
+            if k < size:
                 break
-            if repeat:
-                lap_s = s % length
-                if lap_s < last_lap:  # a new lap: look the sub-step up again
-                    j = min(bisect_right(edges, lap_s) - 1, n_steps - 1)
-                last_lap = lap_s
-            else:
-                lap_s = s if s < length else length
-            while j < n_steps - 1 and edges[j + 1] <= lap_s:
-                j += 1
-            # the target speed (``_target``)
-            if arrived:
-                target = 0.0
-            else:
-                target = cruise = speed[j]
-                if stops:
-                    if phase == "move" and moving >= next_stop:
-                        phase = "brake"
-                    if phase == "brake" and v <= 0:
-                        phase = "stop"
-                    if phase == "stop" and t >= moving / duty:
-                        phase, next_stop = "move", moving + every
-                    if phase != "move":
-                        target = 0.0
-                if target and not repeat:
-                    remaining = length - s if length > s else 0.0
-                    brake = math.sqrt(two_a * remaining) - a_dt
-                    creep = CREEP_FRACTION * cruise
-                    target = min(cruise, brake if brake > creep else creep)
-            dv = target - v
-            v_new = v + (a_dt if dv > a_dt else (-a_dt if dv < -a_dt else dv))
-            if v_new < 0.0:
-                v_new = 0.0
-            t_out.append(t)
-            s_out.append(s)
-            v_out.append(v)
-            a_out.append((v_new - v) / dt)
-            j_out.append(j)
-            if v > 0 or v_new > 0:
-                moving += dt
-            s += 0.5 * (v + v_new) * dt * cos[j]
-            v, t = v_new, t + dt
-            if not repeat and length - s <= 1e-6:
-                arrived = True
-            if arrived and v <= 0 and t >= moving / duty - 1e-9:
-                finished = True  # at rest at the end, the duty cycle waited out
-        self.s, self.v, self.t, self.moving = s, v, t, moving
-        self.phase, self.next_stop, self.arrived, self.finished = phase, next_stop, arrived, finished
-        return {"t": np.asarray(t_out), "s": np.asarray(s_out), "v": np.asarray(v_out),
-                "accel": np.asarray(a_out), "step": np.asarray(j_out, dtype=int)}
+        if not chunks:
+            chunks = [[np.empty(0)] * 4 + [np.empty(0, dtype=np.int64)]]
+        t, s, v, accel, step = (np.concatenate(c) if len(chunks) > 1 else c[0].copy()
+                                for c in zip(*chunks))
+        return {"t": t, "s": s, "v": v, "accel": accel, "step": step.astype(int, copy=False)}
+
+
+_MOVE, _BRAKE, _STOP = 0, 1, 2
+"""Duty-cycle phases of ``Driver``: moving, braking for a stop, stopped."""
+
+_RUN_CHUNK = 16_384
+"""Samples per compiled call of ``Driver.run`` (arrays allocated per call)."""
+
+
+def _drive_steps(edges, speed, cos, a, dt, duty, every, repeat, n, s, v, t, moving, phase,
+                 next_stop, arrived, finished, t_out, s_out, v_out, a_out, j_out):
+    """``Driver.run``'s loop: up to ``n`` samples from the state (s .. finished) into the
+    ``*_out`` arrays; returns the samples written and the new state.
+
+    Plain Python that numba compiles (``_compiled_drive_steps``): the rule of ``Driver``'s
+    Notes, the operations in the order of the interpreted loop it replaces, so the samples
+    are the same floating-point numbers (tests/driver_reference.py is that loop). The
+    sub-step is a pointer that only moves forwards (the arclength never decreases; a new lap
+    looks it up again).
+    """
+    n_steps = speed.size
+    length = edges[-1]
+    a_dt, two_a = a * dt, 2 * a
+    stops = duty < 1.0
+    if repeat:
+        last_lap = s % length
+        j = min(np.searchsorted(edges, last_lap, side="right") - 1, n_steps - 1)
+    else:
+        last_lap = 0.0
+        j = min(np.searchsorted(edges, min(s, length), side="right") - 1, n_steps - 1)
+    k = 0
+    while k < n and not finished:
+        if repeat:
+            lap_s = s % length
+            if lap_s < last_lap:  # a new lap: look the sub-step up again
+                j = min(np.searchsorted(edges, lap_s, side="right") - 1, n_steps - 1)
+            last_lap = lap_s
+        else:
+            lap_s = s if s < length else length
+        while j < n_steps - 1 and edges[j + 1] <= lap_s:
+            j += 1
+        if arrived:
+            target = 0.0
+        else:
+            target = cruise = speed[j]
+            if stops:
+                if phase == _MOVE and moving >= next_stop:
+                    phase = _BRAKE
+                if phase == _BRAKE and v <= 0:
+                    phase = _STOP
+                if phase == _STOP and t >= moving / duty:
+                    phase, next_stop = _MOVE, moving + every
+                if phase != _MOVE:
+                    target = 0.0
+            if target != 0.0 and not repeat:
+                remaining = length - s if length > s else 0.0
+                brake = math.sqrt(two_a * remaining) - a_dt
+                creep = CREEP_FRACTION * cruise
+                target = min(cruise, brake if brake > creep else creep)
+        dv = target - v
+        v_new = v + (a_dt if dv > a_dt else (-a_dt if dv < -a_dt else dv))
+        if v_new < 0.0:
+            v_new = 0.0
+        t_out[k] = t
+        s_out[k] = s
+        v_out[k] = v
+        a_out[k] = (v_new - v) / dt
+        j_out[k] = j
+        k += 1
+        if v > 0 or v_new > 0:
+            moving += dt
+        s += 0.5 * (v + v_new) * dt * cos[j]
+        v, t = v_new, t + dt
+        if not repeat and length - s <= 1e-6:
+            arrived = True
+        if arrived and v <= 0 and t >= moving / duty - 1e-9:
+            finished = True  # at rest at the end, the duty cycle waited out
+    return k, s, v, t, moving, phase, next_stop, arrived, finished
+
+
+@functools.cache
+def _compiled_drive_steps():
+    """``_drive_steps`` compiled by numba on first use (imported here, not at module import:
+    commands that never drive a path do not pay numba's import). ``cache=True`` keeps the
+    machine code on disk next to this module, so later processes load it instead of compiling."""
+    from numba import njit
+
+    try:
+        return njit(cache=True, nogil=True)(_drive_steps)
+    except RuntimeError:  # numba found no writable cache location: compile in memory instead
+        return njit(nogil=True)(_drive_steps)
+
 
 def spread_yaw_rate(heading, last_heading, carry, k: int, dt: float):
     """Heading increments spread over ``k`` samples (causal box filter) -> yaw rate [rad/s].
@@ -248,18 +296,10 @@ def drive_path(steps, step_speed_mps, accel_max_mps2: float, conditions: Conditi
     conditions : duty cycle, sensor rate and mean wind (``physics.conditions``)
     dt_s : time step [s]; stop_every_s : moving time between duty-cycle stops [s]
     """
-    edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
-    driver = Driver(edges, step_speed_mps, steps.cos_t, accel_max_mps2, dt_s,
-                    conditions.duty_cycle, stop_every_s)
-    chunks = []
-    while not driver.finished:
-        chunks.append(driver.run(100_000))
-    kin = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
-    heading = step_headings_rad(steps)[kin["step"]]
-    yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0), max(1, round(TURN_SPREAD_S / dt_s)),
-                             dt_s)
-    return kin, drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[kin["step"]],
-                            conditions)
+    kin = _drive_once(steps, step_speed_mps, accel_max_mps2, conditions.duty_cycle, dt_s,
+                      stop_every_s)
+    return kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), conditions.wind_xy_mps,
+                            steps.crr[kin["step"]], conditions)
 
 
 def profile_energy(model, steps, step_speed_mps, accel_max_mps2: float, conditions: Conditions,
@@ -305,166 +345,18 @@ def profile_gradient(model, steps, step_speed_mps, accel_max_mps2: float,
 # --- many independent single runs at once ---------------------------------------------------
 
 
-def _drive_kinematics(edges_list, speed_list, cos_list, accel_max: float, dt: float,
-                      duty: float, stop_every_s: float) -> list[dict]:
-    """``Driver.run``'s arrays for many independent single runs (``repeat=False``), stepped
-    together: one numpy loop over time steps with arrays of one entry per path.
-
-    Notes
-    -----
-    Each path follows the scalar ``Driver``'s arithmetic, the same operations in the same
-    order, so its samples are the same floating-point numbers. What differs is form only:
-
-    * sub-step lookup: a pointer per path into one array of all paths' sub-step end edges
-      (each path's last edge replaced by ``inf``), advanced while the next edge is ``<= s``.
-      The arclength never decreases, so the pointer only moves forwards and lands where
-      ``min(bisect_right(edges, min(s, length)) - 1, n - 1)`` does; when every sub-step (but
-      a path's last) is longer than a time step can drive, one advance per step is enough.
-    * duty-cycle phases as flags, checked only when they can change (a moving time cannot
-      pass a stop before the clock does: both add up the same ``dt``). After arrival the
-      ``Driver`` never reads its phase again (the target is 0), so it is not kept up there.
-    * a finished path (at rest at its end, target 0) no longer changes; it is no longer
-      recorded. ``accel`` is ``(v[k + 1] - v[k]) / dt`` of the recorded speeds, the division
-      ``Driver`` does.
-    """
-    n = len(edges_list)
-    n_sub = np.array([len(v) for v in speed_list], dtype=np.intp)
-    s_off = np.r_[0, np.cumsum(n_sub)[:-1]].astype(np.intp)
-    edges = [np.asarray(e, float) for e in edges_list]
-    upper = np.concatenate([np.r_[e[1:-1], np.inf] for e in edges])
-    length = np.array([e[-1] for e in edges])
-    speed = np.concatenate([np.asarray(v, float) for v in speed_list])
-    cos = np.concatenate([np.asarray(c, float) for c in cos_list])
-    creep = CREEP_FRACTION * speed
-
-    a, dt, duty, every = float(accel_max), float(dt), float(duty), float(stop_every_s)
-    a_dt, two_a = a * dt, 2 * a
-    inner = np.concatenate([np.diff(e[:-1]) for e in edges])  # sub-steps but the last
-    v_top = float(speed.max(initial=0.0))
-    single = inner.size == 0 or float(inner.min()) > v_top * dt * (1 + 1e-6) + 1e-9
-
-    zero, lo, hi = np.zeros(n), np.full(n, -a_dt), np.full(n, a_dt)
-    s, v, moving = np.zeros(n), np.zeros(n), np.zeros(n)
-    rem = length - s
-    stops = duty < 1.0
-    braking, stopped = np.zeros(n, bool), np.zeros(n, bool)
-    any_braking = any_stopped = False
-    next_stop = np.full(n, every)
-    first_stop = every
-    arrived, finished, waiting = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
-    halt = arrived
-    n_arrived = 0
-    g = s_off.copy()  # global sub-step index of each path
-    n_samples = np.zeros(n, dtype=np.intp)
-    chunk = 4096
-    rec_s, rec_v = np.empty((chunk, n)), np.empty((chunk + 1, n))
-    rec_g = np.empty((chunk, n), dtype=np.intp)
-    t, k = 0.0, 0
-    t_out = []
-    while True:
-        if k == rec_s.shape[0]:
-            rec_s = np.concatenate([rec_s, np.empty((chunk, n))])
-            rec_v = np.concatenate([rec_v, np.empty((chunk, n))])
-            rec_g = np.concatenate([rec_g, np.empty((chunk, n), dtype=np.intp)])
-        # sub-step: Driver's bisect on min(s, length), clipped to the last sub-step
-        g += upper[g] <= s
-        if not single:
-            while True:
-                ahead = upper[g] <= s
-                if not np.count_nonzero(ahead):
-                    break
-                g += ahead
-        cruise = speed[g]
-        # Driver.run's target speed
-        if stops:
-            changed = False
-            if t >= first_stop:  # moving <= t: no stop is due before
-                hit = moving >= next_stop  # next_stop is inf unless moving
-                if np.count_nonzero(hit):
-                    braking |= hit
-                    next_stop[hit] = np.inf
-                    any_braking = changed = True
-                first_stop = float(next_stop.min())
-            if any_braking:
-                rest = braking & (v <= zero)
-                if np.count_nonzero(rest):
-                    braking &= ~rest
-                    stopped |= rest
-                    any_braking = bool(np.count_nonzero(braking))
-                    any_stopped = changed = True
-            if any_stopped:
-                go = stopped & (t >= moving / duty)
-                if np.count_nonzero(go):
-                    stopped &= ~go
-                    next_stop = np.where(go, moving + every, next_stop)
-                    first_stop = float(next_stop.min())
-                    any_stopped = bool(np.count_nonzero(stopped))
-                    changed = True
-            if changed:
-                halt = arrived | braking | stopped
-        np.maximum(rem, zero, out=rem)
-        brake = np.sqrt(two_a * rem)
-        brake -= a_dt
-        np.maximum(brake, creep[g], out=brake)
-        target = np.minimum(cruise, brake, out=brake)
-        target[halt] = 0.0
-        # the step
-        dv = target - v
-        np.maximum(dv, lo, out=dv)
-        np.minimum(dv, hi, out=dv)
-        v_new = v + dv
-        np.maximum(zero, v_new, out=v_new)
-        t_out.append(t)
-        rec_s[k] = s
-        rec_v[k] = v
-        rec_g[k] = g
-        both = v + v_new
-        moving = np.where(both > zero, moving + dt, moving)  # v, v_new >= 0
-        both *= 0.5
-        both *= dt
-        both *= cos[g]
-        s = s + both
-        v, t = v_new, t + dt
-        k += 1
-        rem = length - s
-        arrived |= rem <= 1e-6
-        n_now = int(np.count_nonzero(arrived))
-        if n_now != n_arrived:
-            n_arrived = n_now
-            waiting = arrived & ~finished
-            halt = arrived | braking | stopped if stops else arrived
-        if n_arrived:
-            done = waiting & (v <= zero)
-            if np.count_nonzero(done):
-                done &= t >= moving / duty - 1e-9
-                if np.count_nonzero(done):
-                    n_samples[done] = k
-                    finished |= done
-                    waiting &= ~done
-                    if not np.count_nonzero(waiting) and n_arrived == n:
-                        break
-    rec_v[k] = v
-    accel = ((rec_v[1:k + 1] - rec_v[:k]) / dt).T.copy()
-    # path-major (n, k): each path's samples contiguous, its first n_samples[p] valid
-    return (np.asarray(t_out), rec_s[:k].T.copy(), rec_v[:k].T.copy(), accel,
-            (rec_g[:k] - s_off).T.astype(int), n_samples)
+def _drive_once(steps, step_speed_mps, accel_max_mps2: float, duty_cycle: float, dt_s: float,
+                stop_every_s: float) -> dict:
+    """``Driver.run``'s arrays of one single run over ``steps`` to its end."""
+    edges = np.r_[0.0, np.cumsum(steps.horiz_m)]
+    driver = Driver(edges, step_speed_mps, steps.cos_t, accel_max_mps2, dt_s, duty_cycle,
+                    stop_every_s)
+    return driver.run(np.iinfo(np.int64).max)
 
 
-def _split_kinematics(records) -> list[dict]:
-    """``_drive_kinematics``' records as one ``Driver.run`` dict per path."""
-    t_all, s_rec, v_rec, accel, j_rec, n_samples = records
-    return [{"t": t_all[:m].copy(), "s": s_rec[p, :m].copy(), "v": v_rec[p, :m].copy(),
-             "accel": accel[p, :m].copy(), "step": j_rec[p, :m].copy()}
-            for p, m in enumerate(n_samples.tolist())]
-
-
-def _path_kinematics(steps_list, step_speed_list, accel_max_mps2, duty_cycle, dt_s,
-                     stop_every_s) -> tuple:
+def _check_lengths(steps_list, step_speed_list) -> None:
     if len(steps_list) != len(step_speed_list):
         raise ValueError(f"{len(steps_list)} paths but {len(step_speed_list)} speed arrays")
-    edges = [np.r_[0.0, np.cumsum(st.horiz_m)] for st in steps_list]
-    return _drive_kinematics(edges, step_speed_list, [st.cos_t for st in steps_list],
-                             accel_max_mps2, dt_s, duty_cycle, stop_every_s)
 
 
 def _yaw_rate(steps, kin: dict, dt_s: float) -> np.ndarray:
@@ -474,24 +366,17 @@ def _yaw_rate(steps, kin: dict, dt_s: float) -> np.ndarray:
     return yaw
 
 
-def drive_paths(steps_list, step_speed_list, accel_max_mps2: float, conditions: Conditions,
-                dt_s: float = SAMPLE_DT_S,
-                stop_every_s: float = STOP_EVERY_S) -> list[tuple[dict, MotionState]]:
-    """``drive_path`` of many independent paths at once: for each, the same samples and
-    MotionState as ``drive_path`` gives it (parameters as there, ``steps_list`` and
-    ``step_speed_list`` one entry per path).
-
-    The kinematics of all paths advance together in one numpy loop over time steps (the
-    scalar ``Driver`` costs a Python iteration per sample and path), with the ``Driver``'s
-    arithmetic in the same order, so the samples are those of ``drive_path``.
-    """
-    if not len(steps_list) and not len(step_speed_list):
-        return []
-    kins = _split_kinematics(_path_kinematics(steps_list, step_speed_list, accel_max_mps2,
-                                              conditions.duty_cycle, dt_s, stop_every_s))
-    return [(kin, drive_state(steps, kin, _yaw_rate(steps, kin, dt_s), conditions.wind_xy_mps,
-                              steps.crr[kin["step"]], conditions))
-            for steps, kin in zip(steps_list, kins)]
+def drive_returns(steps_list, step_speed_list, accel_max_mps2: float, duty_cycle: float,
+                  dt_s: float = SAMPLE_DT_S, stop_every_s: float = STOP_EVERY_S) -> list[dict]:
+    """The kinematics of many independent single runs, one dict per path: ``Driver.run``'s
+    ``v``, ``accel`` and ``step`` and the yaw rate ``yaw_radps`` of ``drive_path`` (what
+    ``driven_energies_and_gradients`` reads). They do not depend on the energy model, so a
+    caller may keep them across models."""
+    _check_lengths(steps_list, step_speed_list)
+    kins = [_drive_once(st, v, accel_max_mps2, duty_cycle, dt_s, stop_every_s)
+            for st, v in zip(steps_list, step_speed_list)]
+    return [{"v": kin["v"], "accel": kin["accel"], "step": kin["step"],
+             "yaw_radps": _yaw_rate(st, kin, dt_s)} for st, kin in zip(steps_list, kins)]
 
 
 def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max_mps2: float,
@@ -500,24 +385,30 @@ def profile_energies_and_gradients(model, steps_list, step_speed_list, accel_max
                                    ) -> tuple[np.ndarray, np.ndarray]:
     """Profile energy [J], shape (n,), and its gradient d/d theta, shape (n, k), of many paths:
     per path ``profile_energy(...).total_J`` and ``profile_gradient(...)`` (parameters as
-    ``drive_paths``), from one drive of all paths and one evaluation of the model's power and
-    Jacobian over all their samples (the model's terms are per sample)."""
+    ``drive_path``, one steps and speed array per path)."""
+    kins = drive_returns(steps_list, step_speed_list, accel_max_mps2, conditions.duty_cycle,
+                         dt_s, stop_every_s)
+    return driven_energies_and_gradients(model, steps_list, kins, conditions, dt_s)
+
+
+def driven_energies_and_gradients(model, steps_list, kins, conditions: Conditions,
+                                  dt_s: float = SAMPLE_DT_S) -> tuple[np.ndarray, np.ndarray]:
+    """Energy [J], shape (n,), and gradient d/d theta, shape (n, k), of paths already driven
+    (``drive_returns``), from one evaluation of the model's power and Jacobian over all their
+    samples (the model's terms are per sample), then reduced path by path as
+    ``profile_energy`` / ``profile_gradient`` reduce one path."""
     k = len(model.theta)
     n = len(steps_list)
-    if n == 0 and not len(step_speed_list):
+    if n == 0:
         return np.zeros(0), np.zeros((0, k))
-    t_all, _, v_rec, accel, j_rec, n_samples = _path_kinematics(
-        steps_list, step_speed_list, accel_max_mps2, conditions.duty_cycle, dt_s, stop_every_s)
-    valid = np.arange(t_all.size) < n_samples[:, None]  # path-major, as the records
+    n_samples = np.array([kin["step"].size for kin in kins])
     bounds = np.r_[0, np.cumsum(n_samples)]
     step_off = np.r_[0, np.cumsum([st.horiz_m.size for st in steps_list])[:-1]]
-    j = j_rec[valid] + np.repeat(step_off, n_samples)  # into the concatenated sub-steps
+    j = np.concatenate([kin["step"] for kin in kins]) + np.repeat(step_off, n_samples)
     steps = steps_list[0].concat(steps_list)  # pathcost imports this module: no import back
-    heading = step_headings_rad(steps)[j]
-    k_spread = max(1, round(TURN_SPREAD_S / dt_s))
-    yaw = np.concatenate([spread_yaw_rate(heading[lo:hi], heading[lo], np.zeros(0), k_spread,
-                                          dt_s)[0] for lo, hi in pairwise(bounds)])
-    kin = {"step": j, "v": v_rec[valid], "accel": accel[valid]}
+    yaw = np.concatenate([kin["yaw_radps"] for kin in kins])
+    kin = {"step": j, "v": np.concatenate([kin["v"] for kin in kins]),
+           "accel": np.concatenate([kin["accel"] for kin in kins])}
     state = drive_state(steps, kin, yaw, conditions.wind_xy_mps, steps.crr[j], conditions)
     power = np.broadcast_to(np.asarray(model.power_W(state), float), j.shape)
     jac = np.broadcast_to(np.asarray(model.power_jacobian(state), float), (j.size, k))

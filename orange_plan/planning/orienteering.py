@@ -112,14 +112,19 @@ def solve(p: Orienteering, progress=None) -> Tour:
 
 
 def insertion_deltas(p: Orienteering, nodes, candidates: np.ndarray):
-    """Cheapest insertion of each candidate: (delta_J, delta_s, position, direction).
+    """Insertion cost of each candidate in each direction and gap: (delta_J, delta_s), each
+    of shape (candidates, 2, gaps), gap ``g`` being the one before stop ``g``.
 
-    For every candidate, direction and gap between consecutive stops the extra energy is
-    ``D[prev, entry] + service + D[exit, next] - D[prev, next]``; the cheapest gap and
-    direction that keep the time budget are returned (inf where none does).
+    The extra energy is ``D[prev, entry] + service + D[exit, next] - D[prev, next]`` (and the
+    same with times).
     """
     prev = np.r_[p.start, [p.exit[i, o] for i, o in nodes]].astype(int)
     nxt = np.r_[[p.entry[i, o] for i, o in nodes], p.end].astype(int)
+    return _gap_deltas(p, prev, nxt, candidates)
+
+
+def _gap_deltas(p: Orienteering, prev: np.ndarray, nxt: np.ndarray, candidates: np.ndarray):
+    """``insertion_deltas`` for the gaps ``prev[g] -> nxt[g]``."""
     base_J = p.travel_J[prev, nxt]
     base_s = p.travel_s[prev, nxt]
     a = p.entry[candidates]  # (c, 2)
@@ -132,18 +137,25 @@ def insertion_deltas(p: Orienteering, nodes, candidates: np.ndarray):
 
 
 def insert_greedily(p: Orienteering, nodes) -> list[tuple[int, int]]:
-    """Insert candidates by new area per joule while both budgets hold."""
+    """Insert candidates by new area per joule while both budgets hold.
+
+    The insertion costs of every candidate are priced once, then kept: an insertion only
+    replaces its gap by the two gaps around the new stop, so only those two are priced again
+    (each entry is the same expression, so the same number, as pricing all gaps anew).
+    """
     nodes = list(nodes)
     energy, time = tour_cost(p, nodes)
     mask = covered_mask(p, nodes)
     in_tour = np.zeros(p.n, bool)
     in_tour[[n for n, _ in nodes]] = True
+    every = np.arange(p.n)
+    all_J, all_s = insertion_deltas(p, nodes, every)
     while True:
         value = p.cells @ (~mask).astype(float) * p.cell_area_m2
         cand = np.flatnonzero(~in_tour & (value > 0))
         if len(cand) == 0:
             return nodes
-        d_J, d_s = insertion_deltas(p, nodes, cand)
+        d_J, d_s = all_J[cand], all_s[cand]
         ok = (energy + d_J <= p.budget_J) & (time + d_s <= p.budget_s)
         d_J = np.where(ok, d_J, np.inf)
         flat = d_J.reshape(len(cand), -1)
@@ -156,11 +168,17 @@ def insert_greedily(p: Orienteering, nodes) -> list[tuple[int, int]]:
         k = int(np.argmax(ratio))
         i = int(cand[k])
         o, pos = divmod(int(best[k]), len(nodes) + 1)
+        prev = p.start if pos == 0 else p.exit[nodes[pos - 1][0], nodes[pos - 1][1]]
+        nxt = p.end if pos == len(nodes) else p.entry[nodes[pos][0], nodes[pos][1]]
         nodes.insert(pos, (i, o))
         energy += float(best_J[k])
         time += float(d_s[k, o, pos])
         in_tour[i] = True
         mask[p.cells[i].indices] = True
+        new_J, new_s = _gap_deltas(p, np.array([prev, p.exit[i, o]]),
+                                   np.array([p.entry[i, o], nxt]), every)
+        all_J = np.concatenate([all_J[:, :, :pos], new_J, all_J[:, :, pos + 1:]], axis=2)
+        all_s = np.concatenate([all_s[:, :, :pos], new_s, all_s[:, :, pos + 1:]], axis=2)
 
 
 # --- local search on energy -------------------------------------------------------------

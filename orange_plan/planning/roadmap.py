@@ -378,8 +378,11 @@ def walk_predecessors(pred: np.ndarray, source: int, vertex: int) -> list[int]:
     return seq
 
 
-def energy_field(roadmap: Roadmap, source: int, towards: bool) -> EnergyField:
-    """Dijkstra from (``towards=False``) or to (``towards=True``) a vertex, with gradients.
+def energy_field(roadmap: Roadmap, source: int, towards: bool,
+                 with_gradient: bool = True) -> EnergyField:
+    """Dijkstra from (``towards=False``) or to (``towards=True``) a vertex, with gradients
+    unless ``with_gradient`` is False (then, as for a roadmap without a jacobian, the field's
+    gradient has no columns).
 
     Notes
     -----
@@ -391,7 +394,7 @@ def energy_field(roadmap: Roadmap, source: int, towards: bool) -> EnergyField:
         graph = graph.T.tocsr()
     dist, pred = dijkstra(graph, directed=True, indices=source, return_predecessors=True)
     pred = np.where(pred < 0, -1, pred)
-    gradient = np.zeros((roadmap.n_vertices, roadmap.jacobian.shape[1]))
+    gradient = np.zeros((roadmap.n_vertices, roadmap.jacobian.shape[1] if with_gradient else 0))
     reached = np.flatnonzero(np.isfinite(dist) & (pred >= 0))
     if len(reached) and gradient.shape[1]:
         index = roadmap.edge_index()

@@ -30,7 +30,7 @@ every vertex, not on the heuristic's estimates; a plan is only returned when eve
 from __future__ import annotations
 
 import time as _time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -56,6 +56,7 @@ from orange_plan.planning.reach import (
     query_points,
     reserve_J,
 )
+from orange_plan.planning.returns import DrivenReturns
 from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, energy_field
 
 COST_MODES = ("physics", "distance")
@@ -90,6 +91,9 @@ class TourSetup:
     point_vertex: np.ndarray  # (P,) roadmap vertex of each point
     roadmap: Roadmap  # the reach roadmap extended by the candidates' end points
     to_home: EnergyField  # energy to home from every vertex of the extended roadmap
+    # (a warm setup's has no gradient columns: ``warm_setup``)
+    # the returns' drives, shared by the warm setups made from this one (``returns``)
+    returns: DrivenReturns = field(default_factory=DrivenReturns, compare=False, repr=False)
 
     @property
     def roadmap_xy_m(self) -> np.ndarray:
@@ -279,7 +283,8 @@ def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
                       covered=covered)
     predecessors = np.pad(setup.predecessors, ((0, 0), (0, 1)), constant_values=-9999)
     predecessors[0] = pred[0]
-    to_home = energy_field(roadmap, roadmap.home_index, towards=True)
+    # a replan reads the field's energies and paths only (returns are re-evaluated exactly)
+    to_home = energy_field(roadmap, roadmap.home_index, towards=True, with_gradient=False)
     warm = replace(reach, fast=fast, exact=exact, roadmap=roadmap, start_index=vertex,
                    energy_used_J=float(start.energy_used_J))
     return replace(setup, reach=warm, problem=problem, predecessors=predecessors,
@@ -780,15 +785,12 @@ def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
             back = drive(ex, xy, ex.speed_mps)
             energy[n], grad[n] = back.energy_J[-1], back.gradient[-1]
         return Driven(energy[back_to], np.zeros(len(ids)), grad[back_to])
-    # All returns driven together (one numpy loop over time): the same samples as driving
-    # each alone, at a fraction of the cost of hundreds of scalar drives.
-    from orange_plan.physics.profile import profile_energies_and_gradients
+    # The returns' motion does not depend on the model: kept across replans (``returns``).
+    from orange_plan.physics.profile import driven_energies_and_gradients
 
-    steps = [subdivide(ex.world, xy[:-1], xy[1:]) for xy in paths]
-    speeds = [st.per_step(np.full(st.n_segments, ex.speed_mps)) for st in steps]
-    e, g = profile_energies_and_gradients(ex.model, steps, speeds, ex.accel_max_mps2,
-                                          ex.conditions)
-    energy[rows], grad[rows] = e, g
+    steps, kins = setup.returns.driven(ex, paths)
+    energy[rows], grad[rows] = driven_energies_and_gradients(ex.model, steps, kins,
+                                                             ex.conditions)
     return Driven(energy[back_to], np.zeros(len(ids)), grad[back_to])
 
 
