@@ -59,8 +59,7 @@ def reference_return(cost, xy):
     yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0),
                              round(TURN_SPREAD_S / SAMPLE_DT_S), SAMPLE_DT_S)
     c = cost.conditions
-    state = drive_state(steps, kin, yaw, c.wind_xy_mps, steps.crr[kin["step"]],
-                        c.sensor_rate_Hz)
+    state = drive_state(steps, kin, yaw, c.wind_xy_mps, steps.crr[kin["step"]], c)
     power = np.broadcast_to(cost.model.power_W(state), kin["t"].shape)
     return float(np.cumsum(power)[-1] * SAMPLE_DT_S), \
         cost.model.power_jacobian(state).sum(axis=0) * SAMPLE_DT_S
