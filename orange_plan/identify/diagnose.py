@@ -687,8 +687,10 @@ def _needs_wind(d: Design):
         return "the wind is recorded"
     if "drag_kg_per_m" not in d.base.names or d.base.coefficient("drag_kg_per_m") <= 0:
         return "no drag term for a wind to act on"
-    drag_W = d.columns[:, d.base.names.index("drag_kg_per_m")] * d.base.coefficient(
-        "drag_kg_per_m")
+    # at the scenario's drag coefficient: the refit one may have grown to take up something
+    # else (a slope met in one direction), which is no evidence of a wind
+    i = d.base.names.index("drag_kg_per_m")
+    drag_W = d.columns[:, i] * d.prior_mean[i]
     if np.mean(np.abs(drag_W)) < MIN_DRAG_SHARE * np.mean(np.abs(d.y)):
         return "drag is negligible at these speeds: a wind could not show"
     if not {"x_m", "y_m"} <= d.columns_of:
