@@ -147,7 +147,7 @@ def test_bounded_solve_from_normal_equations_matches_direct_least_squares(seed, 
     assert cost(ours) <= cost(ref) * (1 + 1e-6) + 1e-9
 
 
-@settings(max_examples=4, deadline=None)
+@settings(max_examples=4, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 10_000))
 def test_a_recording_of_the_model_itself_never_gets_a_new_term(ctx, seed):
     """Invariant: with nothing left out, whatever the noise draw, nothing is named (a named

@@ -665,6 +665,17 @@ def _needs_landed(d: Design):
     return None if (~d.airborne).mean() > 0.02 else "no landed period to tell hover from idle"
 
 
+def _needs_long_run(d: Design):
+    """A warm-up with a 20-minute time constant is a straight line over a few minutes, which
+    slow noise (a breeze, a battery settling) draws as well: only runs of half the time
+    constant or more can show it."""
+    from orange_plan.physics.terms import DRIFT_TAU_S
+
+    span = float(d.t_s[-1] - d.t_s[0])
+    return None if span >= 0.5 * DRIFT_TAU_S else f"the run ({span:.0f} s) is too short to " \
+        f"show a warm-up of time constant {DRIFT_TAU_S:.0f} s"
+
+
 def _needs_cold_cells(d: Design):
     temps = d.frame["battery_C"].to_numpy(float)
     return None if np.nanmin(temps) < 20.0 else "the cells never ran cold (< 20 C)"
@@ -719,6 +730,7 @@ _NEEDS: dict[str, Callable] = {
     "regen": _needs_braking,
     "hvac_ambient": _varies("ambient_C", 3.0),
     "battery_temperature": _needs_cold_cells,
+    "drift": _needs_long_run,
 }
 _FEATURES: dict[str, tuple[Callable, str]] = {
     "ancillary": (lambda d: d.t_s, "time since start [s]"),
