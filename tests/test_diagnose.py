@@ -213,3 +213,24 @@ def test_cli_refuses_a_missing_scenario_and_a_bad_output(ctx, tmp_path):
     assert res.exit_code == 2
     res = run_cli("diagnose", rec, "--scenario", ctx.scenario.path, "-o", tmp_path / "x.txt")
     assert res.exit_code == 2 and "-o" in res.stderr
+
+
+# --- real recordings -------------------------------------------------------------------------
+
+REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.mark.skipif(not (DATA / "borealtc").is_dir(),
+                    reason="real data not present in ../shared/data (BorealTC)")
+def test_real_husky_run_turning_scrub_is_found_with_the_a_priori_scenario():
+    """README "Diagnosis on the real recordings": husky_a200 carries turning_torque with no
+    a-priori value (0: left out); on a converted asphalt run diagnosis names the turning
+    scrub and the held-out RMSE falls by a third or more."""
+    from orange_plan.telemetry.importers import read_log
+
+    rec = recording_from_frame(read_log(DATA / "borealtc" / "ASPHALT" / "pro_01.csv")[0])
+    ctx = load_context(REPO / "scenarios" / "husky_a200.toml")
+    result = diagnose(rec, ctx)
+    assert "turning" in [f.term for f in result.findings]
+    assert result.improved.cv_rmse_W < 0.67 * result.baseline.cv_rmse_W
