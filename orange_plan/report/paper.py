@@ -79,9 +79,12 @@ def generalised_note(sections: dict[str, Section]) -> Section:
         f"`identify.calibrate.Calibrator` on {CALIBRATION_RUNS} simulated calibration runs "
         "to depletion (fresh truth draws of the same experiment) with the mean usable "
         "energy they measured.",
-        "**Not in this report: the terms that diagnosis adds.** `orange-plan diagnose` "
-        "(issue #6) is not built yet, so there is no 'with diagnosed terms' row; none is "
-        "faked. When it exists, its terms would join each calibrated model here.",
+        "**Not in this report: a 'with diagnosed terms' row.** The truth-only effects of "
+        "these experiments are coefficient offsets, gusts, roughness and battery ageing, "
+        "none of them a term the scenarios lack, so there is nothing for `orange-plan "
+        "diagnose` to add and no row is faked. Diagnosis is measured where terms are "
+        "concealed (`orange-plan bench diagnose`: the README's 'Diagnosis: measured', and "
+        "'Diagnosis on the real recordings' for the BorealTC and BMW i3 runs).",
     ])
 
 
