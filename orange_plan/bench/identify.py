@@ -178,8 +178,7 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
                    to_depletion=True)
     rec = recording_from_frame(sim.frame, f"{ctx.scenario.name} seed {seed}")
-    state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
-                            channel_defaults=ctx.conditions.channels)
+    state = recording_state(rec, ctx.world, conditions=ctx.conditions)
     est = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J, memory_s, window_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s,
                      until_s=until_fraction * sim.duration_s)
@@ -318,8 +317,7 @@ def whole_run_prediction(model, rec, ctx, settings: dict):
     """Predicted battery energy of a recording's motion under ``model`` (gaps skipped) and its
     predictive standard deviation (``telemetry.replay.RunEnergy``)."""
 
-    state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
-                            channel_defaults=ctx.conditions.channels,
+    state = recording_state(rec, ctx.world, conditions=ctx.conditions,
                             grade_window_m=settings.get("grade_window_m"),
                             yaw_rate_column=settings.get("yaw_rate_column"))
     return run_energy(rec, model, state)
@@ -361,8 +359,7 @@ def online_energy_errors(model, rec, ctx, settings: dict, fractions=PREDICT_AT,
     so far plus the current coefficients' prediction for the rest of the motion (the route
     ahead is known, as in a planned mission). Errors are (predicted - recorded) / recorded.
     """
-    state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
-                            channel_defaults=ctx.conditions.channels,
+    state = recording_state(rec, ctx.world, conditions=ctx.conditions,
                             grade_window_m=settings.get("grade_window_m"),
                             yaw_rate_column=settings.get("yaw_rate_column"))
     t, power = rec.t_s, rec.frame["power_W"].to_numpy(float)

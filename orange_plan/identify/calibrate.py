@@ -171,8 +171,7 @@ def recording_samples(recordings, ctx, n_blocks: int = 10,
         raise InputError("calibrate needs at least one recording")
     states, sizes, power, dt, block, up = [], [], [], [], [], []
     for i, rec in enumerate(recordings):
-        state = recording_state(rec, ctx.world, ctx.conditions.sensor_rate_Hz,
-                                channel_defaults=ctx.conditions.channels,
+        state = recording_state(rec, ctx.world, conditions=ctx.conditions,
                                 grade_window_m=grade_window_m,
                                 yaw_rate_column=yaw_rate_column)
         n = len(rec.frame)

@@ -341,8 +341,7 @@ class MissionSession:
         if len(history) >= 2:
             context = history.tail(len(frame) + CONTEXT_ROWS)
             rec = recording_from_frame(context, "samples")
-            state = recording_state(rec, self.ctx.world, self.ctx.conditions.sensor_rate_Hz,
-                                    channel_defaults=self.ctx.conditions.channels)
+            state = recording_state(rec, self.ctx.world, conditions=self.ctx.conditions)
             state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
             state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
             power = frame["power_W"].to_numpy(float)

@@ -229,8 +229,7 @@ def online_ranges_m(belief: Context, sim: SimResult, fractions, batch_s: float =
     from orange_plan.telemetry.state import recording_state
 
     rec = recording_from_frame(sim.frame, f"{belief.scenario.name} run")
-    state = recording_state(rec, belief.world, belief.conditions.sensor_rate_Hz,
-                            channel_defaults=belief.conditions.channels)
+    state = recording_state(rec, belief.world, conditions=belief.conditions)
     est = OnlineEstimator(belief.model, belief.scenario.battery.usable_J, memory_s, memory_s)
     history = stream(est, state, rec.frame["power_W"].to_numpy(float), rec.t_s, batch_s,
                      until_s=max(fractions) * sim.duration_s)

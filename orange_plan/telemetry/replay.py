@@ -107,7 +107,7 @@ def run_energy(recording: Recording, model: EnergyModel, state: MotionState) -> 
 
 
 def replay(recording: Recording, model: EnergyModel, world=None,
-           sensor_rate_Hz: float = 0.0, channel_defaults=None) -> Replay:
+           sensor_rate_Hz: float = 0.0, conditions=None) -> Replay:
     """Compare a recording's power with the model's prediction along the same motion.
 
     Parameters
@@ -116,15 +116,15 @@ def replay(recording: Recording, model: EnergyModel, world=None,
     model : the energy model (e.g. ``load_context(scenario).model``)
     world : the scenario's World (surfaces, default rolling coefficient, wind)
     sensor_rate_Hz : sensor rate where the recording has no ``sensor_rate_Hz`` column [Hz]
-    channel_defaults : channel values where the recording lacks their column (the scenario's
-        ``Conditions.channels``: ambient temperature)
+    conditions : the scenario's operating conditions (sensor rate and the channel values
+        where the recording lacks their column; ``telemetry.state.recording_state``)
 
     Returns
     -------
     Replay
     """
     recorded = recording.frame["power_W"].to_numpy(float)
-    state = recording_state(recording, world, sensor_rate_Hz, channel_defaults=channel_defaults)
+    state = recording_state(recording, world, sensor_rate_Hz, conditions=conditions)
     predicted = run_energy(recording, model, state)
     e_rec = float(cumulative_J(recording, recorded)[-1])
     e_pred = predicted.energy_J
@@ -168,5 +168,4 @@ def check_positions_on_map(recording: Recording, world) -> None:
 
 def replay_context(recording: Recording, ctx) -> Replay:
     """``replay`` with a scenario Context's model, world and sensor rate."""
-    return replay(recording, ctx.model, ctx.world, ctx.conditions.sensor_rate_Hz,
-                  ctx.conditions.channels)
+    return replay(recording, ctx.model, ctx.world, conditions=ctx.conditions)

@@ -7,12 +7,11 @@ wheels-up rows, the same yaw rate and the same operating-condition channels.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import numpy as np
 import pandas as pd
 
 from orange_plan.errors import InputError
+from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.state import CHANNELS, MotionState
 from orange_plan.physics.wind import wind_vector_mps
 from orange_plan.telemetry.derive import gap_free_pieces, position_heading_rad, smooth
@@ -30,7 +29,7 @@ recording column of its name (a missing value or column counts as 0)."""
 def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.0,
                     default_crr: float | None = None, grade_window_m: float | None = None,
                     yaw_rate_column: str | None = None,
-                    channel_defaults: Mapping[str, float] | None = None) -> MotionState:
+                    conditions: Conditions | None = None) -> MotionState:
     """Per-sample MotionState of a recording, for ``EnergyModel.power_W`` and its Jacobian.
 
     Parameters
@@ -44,8 +43,9 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
         ``GRADE_WINDOW_M`` (suits GPS/DEM elevation outdoors; use ~1 m on a lab ramp)
     yaw_rate_column : take the yaw rate from this column instead of ``yaw_rate_radps``
         (e.g. BorealTC's ``wheel_yaw_rate_radps``: skid-steer scrub follows the wheels)
-    channel_defaults : value of a channel whose column the recording lacks (the mission's
-        ``Conditions.channels``: its ambient temperature); else 0
+    conditions : the mission's operating conditions; when given, its sensor rate replaces
+        ``sensor_rate_Hz`` and its ``channels`` (the ambient temperature) are the value of a
+        channel whose column the recording lacks (else 0)
 
     Returns
     -------
@@ -73,6 +73,8 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
     * Wheels up (``wheels_up`` column true): no speed over ground, grade, acceleration or
       turning on those rows (bench tests of the drivetrain draw only its idle power).
     """
+    if conditions is not None:
+        sensor_rate_Hz = conditions.sensor_rate_Hz
     frame = recording.frame
     n = len(frame)
     t = recording.t_s
@@ -87,7 +89,7 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
         rate = frame["sensor_rate_Hz"].to_numpy(float)
     else:
         rate = np.full(n, float(sensor_rate_Hz))
-    defaults = channel_defaults or {}
+    defaults = conditions.channels if conditions is not None else {}
     channels = {name: DERIVED_CHANNELS[name](recording) if name in DERIVED_CHANNELS
                 else _column_or_default(frame, name, defaults.get(name, 0.0))
                 for name in CHANNELS}
