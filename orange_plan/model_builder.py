@@ -125,6 +125,37 @@ def is_mass_coefficient(name: str) -> bool:
     return _row(name).mass if name in LUMPED or name.startswith(SURFACE_PREFIX) else False
 
 
+HOVER_MASS_EXPONENT = 1.5
+"""Hover power grows as weight^1.5 (momentum theory: induced power ~ T^1.5 / sqrt(rho A))."""
+
+
+def mass_scales(names, ratio: float) -> np.ndarray:
+    """Factor on each coefficient when the moving mass is ``ratio`` times the scenario's:
+    ``ratio`` for the mass-proportional ones, ``ratio ** HOVER_MASS_EXPONENT`` for a hover
+    power, 1 for the rest."""
+    return np.array([ratio if is_mass_coefficient(n) else
+                     ratio**HOVER_MASS_EXPONENT if n == "hover_W" else 1.0 for n in names])
+
+
+def with_payload(model: EnergyModel, mass_kg: float, extra_kg: float) -> EnergyModel:
+    """The model carrying ``extra_kg`` more (``mass_scales``), its covariance scaled alike:
+    the simulator's payload truth and a payload that diagnosis found.
+
+    Raises
+    ------
+    InputError
+        The extra mass (negative: dropped) leaves no mass.
+    """
+    if extra_kg == 0:
+        return model
+    ratio = (mass_kg + extra_kg) / mass_kg
+    if ratio <= 0:
+        raise InputError(f"payload.extra_kg = {extra_kg} leaves no mass (robot {mass_kg} kg)")
+    scale = mass_scales(model.names, ratio)
+    return model.with_theta(dict(zip(model.names, model.theta * scale)),
+                            model.cov * np.outer(scale, scale))
+
+
 def reference_value(name: str, scenario) -> float:
     """The a priori lumped value of coefficient ``name`` from the scenario's physical values
     (per-surface rolling coefficients start at ``rolling_kg``)."""

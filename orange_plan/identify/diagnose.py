@@ -69,13 +69,13 @@ from orange_plan.identify.locate import (
     residual_by_surface,
 )
 from orange_plan.model_builder import (
+    HOVER_MASS_EXPONENT,
     is_mass_coefficient,
     make_term,
-    prior_variance,
-    reference_value,
+    with_payload,
 )
 from orange_plan.physics.model import EnergyModel
-from orange_plan.physics.terms import TERMS, spec_id
+from orange_plan.physics.terms import TERMS, aero_drag_feature, spec_id
 from orange_plan.physics.wind import wind_speed_and_from
 
 MIN_GAIN = 0.02
@@ -275,7 +275,6 @@ class Fit:
     extra : non-linear parameters (all samples): name -> (value, sd)
     names : coefficient names (baseline, then candidates)
     fold_ss : held-out sum of squared errors per fold [W^2]
-    effect_rms_W : RMS of each candidate's fitted power [W]
     x : the design's columns on all samples (n, k) [W per unit]
     """
 
@@ -289,8 +288,7 @@ class Fit:
     extra: dict
     names: tuple
     fold_ss: np.ndarray
-    effect_rms_W: dict
-    x: np.ndarray = None
+    x: np.ndarray
 
     def bic(self, tau: float) -> float:
         """Bayesian information criterion with ``n / tau`` effective samples; compare fits
@@ -298,6 +296,31 @@ class Fit:
         parameters with fewer samples."""
         n_eff = max(self.predicted_W.size / tau, self.theta.size + 2.0)
         return n_eff * np.log(max(self.rmse_W**2, 1e-300)) + self.theta.size * np.log(n_eff)
+
+    def owned(self, cand_id: str) -> list[int]:
+        """Indices of a candidate's coefficients (named ``<candidate>.<coefficient>``)."""
+        return [i for i, name in enumerate(self.names) if name.startswith(f"{cand_id}.")]
+
+    def contribution_W(self, cand_id: str) -> np.ndarray:
+        """A candidate's fitted power along the recording [W]."""
+        own = self.owned(cand_id)
+        return self.x[:, own] @ self.theta[own]
+
+    def effect_rms_W(self, cand_id: str) -> float:
+        """RMS of a candidate's fitted power [W]."""
+        return float(np.sqrt(np.mean(self.contribution_W(cand_id) ** 2)))
+
+    def params_of(self, cand_id: str) -> tuple[dict, dict]:
+        """A candidate's coefficients and non-linear parameters, and their standard
+        errors, by their own names (the ``<candidate>.`` prefix dropped)."""
+        values = {self.names[i].split(".", 1)[1]: float(self.theta[i])
+                  for i in self.owned(cand_id)}
+        sds = {self.names[i].split(".", 1)[1]: float(self.sd[i]) for i in self.owned(cand_id)}
+        for key, (value, sd) in self.extra.items():
+            if key.startswith(f"{cand_id}."):
+                values[key.split(".", 1)[1]] = float(value)
+                sds[key.split(".", 1)[1]] = float(sd)
+        return values, sds
 
 
 def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
@@ -319,12 +342,8 @@ def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
     cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     fold_ss = np.bincount(d.fold, (d.y - held) ** 2, minlength=N_FOLDS)
-    effect = {}
-    for cand in chosen:
-        own = [i for i, nm in enumerate(names) if nm.startswith(f"{cand.id}.")]
-        effect[cand.id] = float(np.sqrt(np.mean((x[:, own] @ theta[own]) ** 2)))
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
-               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, effect, x)
+               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x)
 
 
 def _stack(d: Design, chosen, rows):
@@ -517,17 +536,13 @@ def _term_columns(d: Design, term_id: str) -> Effect:
 def _surface_effect(d: Design, _resid, _rows) -> Effect:
     """Per-surface change of the rolling coefficient: ``rolling_kg_<s> - rolling_kg`` on the
     samples on surface s (the baseline's one coefficient covers every surface)."""
-    rolling = _rolling_column(d)
+    rolling = d.columns[:, d.base.names.index("rolling_kg")]
     code = np.broadcast_to(np.asarray(d.state.surface_code), (d.n,))
     names = _surfaces_seen(d)
     cols = np.stack([rolling * (code == d.world.map.surface_names.index(s)) for s in names], 1)
     base = d.base.coefficient("rolling_kg")
     return Effect(cols, tuple(f"delta_rolling_kg_{s}" for s in names),
                   np.full(len(names), -base), np.full(len(names), np.inf))
-
-
-def _rolling_column(d: Design) -> np.ndarray:
-    return d.columns[:, d.base.names.index("rolling_kg")]
 
 
 def _surfaces_seen(d: Design, share: float = 0.05) -> list[str]:
@@ -539,16 +554,15 @@ def _surfaces_seen(d: Design, share: float = 0.05) -> list[str]:
 
 def _mass_per_kg_W(d: Design) -> np.ndarray:
     """Battery power per kg of extra moving mass at the baseline coefficients [W/kg]: the
-    mass-proportional force terms scale with mass, a hover power with mass^1.5 (momentum
-    theory, as the simulator's payload)."""
+    derivative of ``model_builder.mass_scales`` (the simulator's payload) at no extra mass."""
     mass = d.scenario.robot.mass_kg
     theta = d.base.theta
     per_kg = np.zeros(d.n)
     for i, name in enumerate(d.base.names):
         if is_mass_coefficient(name):
             per_kg += d.columns[:, i] * theta[i] / mass
-    if "hover_W" in d.base.names:
-        per_kg += 1.5 * d.base.coefficient("hover_W") / mass * d.airborne
+    if "hover_W" in d.base.names:  # d(ratio^e)/d(ratio) = e at no extra mass
+        per_kg += HOVER_MASS_EXPONENT * d.base.coefficient("hover_W") / mass * d.airborne
     return per_kg
 
 
@@ -600,9 +614,8 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     moving = (speed > 0.1) & rows
 
     def drag_with(p):
-        s = d.state.with_(wind_x_mps=p[0] + 0.0 * speed, wind_y_mps=p[1] + 0.0 * speed)
-        ax, ay = s.air_velocity()
-        phi = np.sqrt(ax * ax + ay * ay) * (ax * s.dir_x + ay * s.dir_y)
+        windy = d.state.with_(wind_x_mps=p[0] + 0.0 * speed, wind_y_mps=p[1] + 0.0 * speed)
+        (phi,) = aero_drag_feature(windy)
         return p[2] * phi * speed
 
     def fun(p):
@@ -612,7 +625,7 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     sol = least_squares(fun, np.r_[assumed, c], method="lm",
                         x_scale=np.array([1.0, 1.0, max(c, 1e-6)]))
     jac = sol.jac
-    s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, _sub(d, moving),
+    s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, d.samples.subset(moving),
                                                                  INFLATION_BLOCK_S))
     cov = (np.linalg.pinv(jac.T @ jac) * s2)[:2, :2]
     speed_mps, from_deg = wind_speed_and_from(sol.x[0], sol.x[1])
@@ -635,10 +648,6 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     # the column enters at its own size (a share held at 1; a free share would let a fluke
     # scale a small wind into a large effect)
     return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra)
-
-
-def _sub(d: Design, mask) -> Samples:
-    return d.samples.subset(mask)
 
 
 def _applies_term(term_id: str, needs: Callable | None = None):
@@ -810,9 +819,19 @@ class Trial:
     reason: str
 
 
-def select(d: Design, pool: list[Candidate]) -> tuple[list[Candidate], list[Fit], list[Trial]]:
-    """Forward selection with a backward pass (module docstring); returns the chosen
-    candidates, the fit after each acceptance (index 0: baseline) and every trial."""
+@dataclass(frozen=True)
+class Selection:
+    """What ``select`` chose: the candidates, the baseline's fit, the fit with the chosen
+    candidates, and every trial."""
+
+    chosen: list
+    baseline: Fit
+    fit: Fit
+    trials: list
+
+
+def select(d: Design, pool: list[Candidate]) -> Selection:
+    """Forward selection with a backward pass (module docstring)."""
     chosen: list[Candidate] = []
     fits = [fit_design(d, [])]
     trials: list[Trial] = []
@@ -832,7 +851,8 @@ def select(d: Design, pool: list[Candidate]) -> tuple[list[Candidate], list[Fit]
         chosen.append(best[0])
         fits.append(best[1])
         open_pool = [c for c in open_pool if c is not best[0] and not _same_spec(c, best[0])]
-    return _backward(d, chosen, fits), fits, trials
+    chosen, fit = _backward(d, chosen, fits[-1])
+    return Selection(chosen, fits[0], fit, trials)
 
 
 def _same_spec(a: Candidate, b: Candidate) -> bool:
@@ -841,11 +861,11 @@ def _same_spec(a: Candidate, b: Candidate) -> bool:
 
 def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Trial:
     gain = 1.0 - fit.cv_rmse_W / current.cv_rmse_W if current.cv_rmse_W > 0 else 0.0
-    effect_share = fit.effect_rms_W.get(cand.id, 0.0) / max(mean_power_W, 1e-12)
+    effect_share = fit.effect_rms_W(cand.id) / max(mean_power_W, 1e-12)
     n_eff = fit.predicted_W.size / current.tau
     need_t = MIN_T + (np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0)))) if cand.id in SCANNED
                       else 0.0)
-    own = [i for i, nm in enumerate(fit.names) if nm.startswith(f"{cand.id}.")]
+    own = fit.owned(cand.id)
     t = np.abs(fit.theta[own]) / np.where(fit.sd[own] > 0, fit.sd[own], np.inf)
     # a term is significant when its strongest coefficient is: hvac's cooling or one surface
     # of several may rightly sit at 0
@@ -854,7 +874,6 @@ def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Tria
         # the wind vector is fitted together with the drag coefficient, so their standard
         # errors share what the data cannot tell apart; the wind is judged as a whole by the
         # likelihood ratio with the effective sample count, as a t: sqrt(n_eff ln(s0^2/s1^2))
-        n_eff = fit.predicted_W.size / current.tau
         ratio = current.rmse_W**2 / max(fit.rmse_W**2, 1e-300)
         t_max = float(np.sqrt(max(0.0, n_eff * np.log(ratio))))
         speed = fit.extra.get("wind.wind_speed_mps", (0.0, 0.0))[0]
@@ -874,18 +893,18 @@ def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Tria
     return Trial(cand.id, float(gain), t_max, float(bic_change), not reason, reason)
 
 
-def _backward(d: Design, chosen: list[Candidate], fits: list[Fit]) -> list[Candidate]:
-    """Drop a chosen term the others make redundant (its removal costs < MIN_GAIN / 2)."""
+def _backward(d: Design, chosen: list[Candidate], full: Fit) -> tuple[list[Candidate], Fit]:
+    """Drop a chosen term the others make redundant (its removal costs < MIN_GAIN / 2);
+    ``full`` is the fit with all of ``chosen``. Returns the kept ones and their fit."""
     if len(chosen) < 2:
-        return chosen
-    full = fit_design(d, chosen)
+        return chosen, full
     for cand in list(chosen):
         rest = [c for c in chosen if c is not cand]
         reduced = fit_design(d, rest)
         if reduced.cv_rmse_W <= full.cv_rmse_W * (1 + MIN_GAIN / 2):
             chosen = rest
             full = reduced
-    return chosen
+    return chosen, full
 
 
 # --- the whole diagnosis ---------------------------------------------------------------------
@@ -942,12 +961,7 @@ class Diagnosis:
 
     def contributions_W(self) -> dict[str, np.ndarray]:
         """Each found term's fitted power along the recording, by candidate id [W]."""
-        fit = self.improved
-        out = {}
-        for cand in self.chosen:
-            own = [i for i, nm in enumerate(fit.names) if nm.startswith(f"{cand.id}.")]
-            out[cand.id] = fit.x[:, own] @ fit.theta[own]
-        return out
+        return {cand.id: self.improved.contribution_W(cand.id) for cand in self.chosen}
 
     def residual_per_second(self):
         """(second edges [s], baseline residual, improved residual): 1 s means [W]."""
@@ -1015,18 +1029,18 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
     -------
     Diagnosis
     """
+    pool = pool or candidates()
     d = build_design(recording, ctx, grade_window_m=grade_window_m)
-    chosen, _fits, trials = select(d, pool or candidates())
-    if chosen:
+    selection = select(d, pool)
+    if selection.chosen:
         # the baseline's delay estimate was made without the missing physics, whose
         # transients (turns, accelerations) may be what the delay is best seen on
-        improved = fit_design(d, chosen)
-        lag_s = d.lag_s + power_lag_s(d, recording.t_s, improved.predicted_W)
+        lag_s = d.lag_s + power_lag_s(d, recording.t_s, selection.fit.predicted_W)
         if abs(lag_s - d.lag_s) > 0.02:
             d = build_design(recording, ctx, grade_window_m=d.grade_window_m, lag_s=lag_s)
-            chosen, _fits, trials = select(d, pool or candidates())
-    baseline = fit_design(d, [])
-    improved = polish(d, chosen, fit_design(d, chosen))
+            selection = select(d, pool)
+    chosen, baseline, trials = selection.chosen, selection.baseline, selection.trials
+    improved = polish(d, chosen, selection.fit)
     resid = d.y - baseline.predicted_W
     findings = [_finding(d, c, chosen, improved, baseline) for c in chosen]
     conditions = residual_by_condition(d, resid, baseline.tau)
@@ -1066,31 +1080,17 @@ def polish(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Fit
     polished = fit
     for _ in range(rounds):
         columns = np.asarray(model.power_jacobian(d.state), float)
-        if "hover" in owner.values():
-            i = model.names.index("hover_W")
-            columns[:, i] *= d.airborne
         d2 = replace(d, base=model, columns=columns, lower=lower, upper=upper,
                      prior_mean=np.r_[d.prior_mean, np.zeros(extra)],
                      prior_weight=np.r_[d.prior_weight, np.zeros(extra)], cache={})
         polished = fit_design(d2, others)
         model = model.with_theta(dict(zip(model.names, polished.theta[:len(model.names)])))
     names = tuple(f"{owner[n]}.{n}" if n in owner else n for n in polished.names)
-    effect = dict(polished.effect_rms_W)
-    for c in inside:
-        own = [i for i, n in enumerate(names) if n.startswith(f"{c.id}.")]
-        effect[c.id] = float(np.sqrt(np.mean((polished.x[:, own] @ polished.theta[own]) ** 2)))
-    return replace(polished, names=names, effect_rms_W=effect)
+    return replace(polished, names=names)
 
 
 def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -> Finding:
-    own = [i for i, nm in enumerate(improved.names) if nm.startswith(f"{cand.id}.")]
-    params = {improved.names[i].split(".", 1)[1]: float(improved.theta[i]) for i in own}
-    stderr = {improved.names[i].split(".", 1)[1]: float(improved.sd[i]) for i in own}
-    for key, (value, sd) in improved.extra.items():
-        if key.startswith(f"{cand.id}."):
-            params[key.split(".", 1)[1]] = float(value)
-            stderr[key.split(".", 1)[1]] = float(sd)
-    params, stderr = _physical_params(d, cand, params, stderr)
+    params, stderr = _physical_params(d, cand, *improved.params_of(cand.id))
     without = fit_design(d, [c for c in chosen if c is not cand])
     ss_base = float(np.sum((d.y - baseline.predicted_W) ** 2))
     ss_gain = float(np.sum((d.y - without.predicted_W) ** 2)
@@ -1153,58 +1153,39 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit) -> tuple[Energy
 
     Coefficient variances: the joint fit's for fitted ones.
     """
-    theta = dict(zip(fit.names, fit.theta))
-    sd = dict(zip(fit.names, fit.sd))
-    base_names = d.base.names
-    values = {n: float(theta[n]) for n in base_names}
-    variances = {n: float(sd[n]) ** 2 for n in base_names}
+    values = {n: float(v) for n, v in zip(fit.names, fit.theta) if n in d.base.names}
+    variances = {n: float(sd) ** 2 for n, sd in zip(fit.names, fit.sd) if n in d.base.names}
     terms = list(d.base.terms)
     changes: dict = {}
     names = d.world.map.surface_names
     for cand in chosen:
-        own = {k.split(".", 1)[1]: v for k, v in theta.items() if k.startswith(f"{cand.id}.")}
-        own_sd = {k.split(".", 1)[1]: v for k, v in sd.items() if k.startswith(f"{cand.id}.")}
+        own, own_sd = fit.params_of(cand.id)
         if cand.id == "surface_rolling":
-            seen = [k.removeprefix("delta_rolling_kg_") for k in own]
-            term = make_term("surface_rolling", names)
-            terms.insert([t.id for t in terms].index("rolling") + 1, term)
+            terms.insert([t.id for t in terms].index("rolling") + 1,
+                         make_term("surface_rolling", names))
             for s in names:
-                key = f"rolling_kg_{s}"
-                delta = own.get(f"delta_rolling_kg_{s}", 0.0) if s in seen else 0.0
-                values[key] = values["rolling_kg"] + delta
-                variances[key] = variances["rolling_kg"] + own_sd.get(f"delta_rolling_kg_{s}",
-                                                                      0.0) ** 2
+                delta = f"delta_rolling_kg_{s}"
+                values[f"rolling_kg_{s}"] = values["rolling_kg"] + own.get(delta, 0.0)
+                variances[f"rolling_kg_{s}"] = variances["rolling_kg"] + own_sd.get(delta,
+                                                                                   0.0) ** 2
         elif cand.id == "payload":
-            ratio = (d.scenario.robot.mass_kg + own["payload_kg"]) / d.scenario.robot.mass_kg
-            for n in base_names:
-                if is_mass_coefficient(n):
-                    values[n] *= ratio
-                    variances[n] *= ratio**2
-            if "hover_W" in values:
-                values["hover_W"] *= ratio**1.5
             changes["payload_kg"] = own["payload_kg"]
         elif cand.id == "wind":
-            wx = fit.extra["wind.wind_x_mps"][0]
-            wy = fit.extra["wind.wind_y_mps"][0]
-            speed, from_deg = wind_speed_and_from(wx, wy)
+            speed, from_deg = wind_speed_and_from(own["wind_x_mps"], own["wind_y_mps"])
             # the drag under that wind is the one fitted with it (the baseline's coefficient
             # had taken part of the wind's mean drag)
-            values["drag_kg_per_m"], sd_drag = fit.extra["wind.drag_kg_per_m"]
-            variances["drag_kg_per_m"] = sd_drag**2
+            values["drag_kg_per_m"] = own["drag_kg_per_m"]
+            variances["drag_kg_per_m"] = own_sd["drag_kg_per_m"] ** 2
             changes["environment.wind_speed_mps"] = float(speed)
             changes["environment.wind_from_deg"] = float(from_deg) % 360.0
         else:
             term = make_term(cand.id, names)
             terms.append(term)
             for c in term.coefficients:
-                values[c] = float(own[c])
-                variances[c] = float(own_sd[c]) ** 2
+                values[c] = own[c]
+                variances[c] = own_sd[c] ** 2
     coeffs = [c for t in terms for c in t.coefficients]
-    for c in coeffs:  # coefficients of a new surface term with no samples: the a priori value
-        if c not in values:
-            values[c] = reference_value(c, d.scenario)
-            variances[c] = prior_variance(values[c], d.scenario.model.prior_relative_stderr)
     model = EnergyModel(terms, {c: values[c] for c in coeffs},
                         np.diag([variances[c] for c in coeffs]), omega=d.base.omega,
                         discrepancy_rel_sd=d.base.discrepancy_rel_sd)
-    return model, changes
+    return with_payload(model, d.scenario.robot.mass_kg, changes.get("payload_kg", 0.0)), changes

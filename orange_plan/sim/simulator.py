@@ -19,7 +19,7 @@ import pandas as pd
 from scipy.signal import lfilter
 
 from orange_plan.errors import InputError, close_match_hint
-from orange_plan.model_builder import is_mass_coefficient
+from orange_plan.model_builder import with_payload
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import subdivide
 from orange_plan.physics.profile import (
@@ -91,23 +91,6 @@ def truth_model(model: EnergyModel, truth: Truth) -> EnergyModel:
                          f"model (have {', '.join(model.names)})"
                          + close_match_hint(unknown[0], model.names))
     return model.with_theta(truth.coefficients)
-
-
-def with_payload(model: EnergyModel, mass_kg: float, extra_kg: float) -> EnergyModel:
-    """Truth model carrying ``extra_kg`` more: mass coefficients scale by (m + extra) / m and a
-    hover power by ((m + extra) / m) ** 1.5 (momentum theory)."""
-    if extra_kg == 0:
-        return model
-    ratio = (mass_kg + extra_kg) / mass_kg
-    if ratio <= 0:
-        raise InputError(f"payload.extra_kg = {extra_kg} leaves no mass (robot {mass_kg} kg)")
-    theta = model.as_dict()
-    for name, value in theta.items():
-        if is_mass_coefficient(name):
-            theta[name] = value * ratio
-    if "hover_W" in theta:
-        theta["hover_W"] *= ratio**1.5
-    return model.with_theta(theta)
 
 
 def _ou(rng, n: int, dt: float, std: float, tau: float, start: np.ndarray) -> np.ndarray:
