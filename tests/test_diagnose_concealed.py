@@ -25,17 +25,11 @@ SEED = 0
 Z_MAX = 3.0
 """A recovered parameter is within its uncertainty when |fitted - true| <= 3 sd."""
 
-NOT_YET = {
-    # measured at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
-    "surface_rolling+battery_resistance": "the battery loss is not separated next to the "
-                                          "surface's rolling (held-out gain under 2 %)",
+NOT_YET: dict[str, str] = {
+    # name -> the measured reason, at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
 }
 NOT_FOUND: set[str] = set()
-PARAMS_NOT_YET = {
-    "inertia": "found at 21.9 +- 0.8 kg for 29.9: the baseline's rolling and grade take part "
-               "of the start-up power, and the standard error does not cover that",
-    "turning": "27.4 +- 0.3 J/rad for 28.7 (4.1 sd): the turn spikes' shape after the lag",
-}
+PARAMS_NOT_YET: dict[str, str] = {}
 
 
 def _case_names():

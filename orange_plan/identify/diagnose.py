@@ -34,9 +34,18 @@ best one is accepted only when all of these hold:
 * the Bayesian information criterion, with the *effective* number of samples
   ``n / tau``, falls.
 
-A backward pass then drops any chosen term the others make redundant. Non-linear parameters
-(the time a payload changes, a wind vector) are estimated inside each fold on its training
-blocks only.
+When no single candidate passes, pairs of the best few are tried, fitted together and judged
+as one addition (each member must still be significant and worth a term): two effects can
+mask each other, so that neither passes alone. A backward pass then drops any chosen term
+the others make redundant. Non-linear parameters (the time a payload changes, a wind vector)
+are estimated inside each fold on its training blocks only.
+
+Before any of this, the power's delay behind the motion is estimated against the baseline's
+columns *and every candidate's* (``power_lag_s``): a missing term's transients (an
+acceleration's inertia) peak at other moments than the baseline's power, and a delay fitted
+to the baseline alone slides the power towards them. The delay is then taken out by whole
+samples on the recording and by the remaining fraction on the model's side
+(``Design.aligned``), so that a short peak is smoothed once on both sides, not twice on one.
 
 Why it does not invent physics. The baseline terms are refitted first, so a mis-set
 coefficient of a term already present is absorbed by that term, not blamed on a new one.
@@ -113,6 +122,9 @@ scan's t statistics is itself large, so their t must exceed MIN_T by the scan's 
 maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
 that maximum grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff)
 of independent tests: on the null cases the scan's largest t was 1.7-3.2."""
+PAIR_FROM = 4
+"""Single candidates (the best by held-out gain) whose pairs are tried when none passes
+alone [-]."""
 N_BLOCKS = 20
 """Equal-time blocks of the recording; fold k holds out blocks k, k + N_FOLDS, ... [-]."""
 N_FOLDS = 5
@@ -148,7 +160,9 @@ class Design:
     airborne : not in the recording's leading or trailing stationary period (landed)
     columns_of : the recording's column names (what the candidates may read)
     scenario, world : the scenario and its world
-    lag_s : delay of the recorded power behind the motion, corrected before fitting [s]
+    lag_s : delay of the recorded power behind the motion, corrected before fitting [s]:
+        the recorded power is moved by whole samples, the model's columns are delayed by
+        the remaining fraction of a sample (``column_delay``, ``aligned``)
     grade_window_m : elevation smoothing window of the grade [m] (None: the telemetry default)
     """
 
@@ -169,6 +183,22 @@ class Design:
     cache: dict = field(default_factory=dict)
     lag_s: float = 0.0
     grade_window_m: float | None = None
+    column_delay: float = 0.0
+
+    def aligned(self, values) -> np.ndarray:
+        """Model-side values (columns, powers) delayed by ``column_delay`` of a sample, by
+        linear interpolation, the first sample held.
+
+        Why the model side: a meter that reports the power a fraction of a sample late
+        reports an interpolation of it, which smooths a short peak (a turn, a start). Moving
+        the recording back by another interpolation smooths it twice, and a peaked column
+        fitted to a twice-smoothed power comes out 2-5 % low (turning, inertia); delaying the
+        columns by the same fraction smooths them as the meter smoothed the power."""
+        v = np.broadcast_to(np.asarray(values, float), (self.n, *np.shape(values)[1:]))
+        f = self.column_delay
+        if not f:
+            return v
+        return (1.0 - f) * v + f * np.concatenate([v[:1], v[:-1]])
 
     @property
     def y(self) -> np.ndarray:
@@ -180,8 +210,8 @@ class Design:
         power (0 for terms linear in theta; the regen product and the in-battery loss are
         not), so the design is a Gauss-Newton step: ``y - offset ~ J theta + C beta``."""
         if "offset" not in self.cache:
-            power = np.asarray(self.base.power_W(self.state), float)
-            self.cache["offset"] = np.broadcast_to(power, (self.n,)) - self.columns @ self.base.theta
+            power = self.aligned(np.asarray(self.base.power_W(self.state), float))
+            self.cache["offset"] = power - self.columns @ self.base.theta
         return self.cache["offset"]
 
     @property
@@ -276,6 +306,7 @@ class Fit:
     names : coefficient names (baseline, then candidates)
     fold_ss : held-out sum of squared errors per fold [W^2]
     x : the design's columns on all samples (n, k) [W per unit]
+    cov : covariance of ``theta`` (autocorrelation-inflated; ``sd`` is its diagonal's root)
     """
 
     theta: np.ndarray
@@ -289,6 +320,7 @@ class Fit:
     names: tuple
     fold_ss: np.ndarray
     x: np.ndarray
+    cov: np.ndarray = None
 
     def bic(self, tau: float) -> float:
         """Bayesian information criterion with ``n / tau`` effective samples; compare fits
@@ -343,7 +375,7 @@ def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     fold_ss = np.bincount(d.fold, (d.y - held) ** 2, minlength=N_FOLDS)
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
-               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x)
+               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x, cov)
 
 
 def _stack(d: Design, chosen, rows):
@@ -411,46 +443,64 @@ def _design_at(recording, ctx, grade_window_m, lag_s) -> Design:
     sd0 = np.sqrt(np.diag(model.cov)) * PRIOR_SCALE
     weight = np.where(sd0 > 0, 1.0 / np.where(sd0 > 0, sd0, 1.0) ** 2, 0.0)
 
-    def refit(samples_now) -> Design:
+    def refit(samples_now, column_delay=0.0) -> Design:
         theta = np.clip(model.theta, lower, upper)
-        design = None
+        design = Design(samples_now, model, np.zeros((n, len(model.names))), lower, upper,
+                        model.theta.copy(), weight, fold, t, _airborne(recording),
+                        frozenset(recording.frame.columns), ctx.scenario, ctx.world,
+                        recording.frame, column_delay=column_delay)
         for _ in range(8):  # Gauss-Newton: the clip mask and the regen product settle
-            current = model.with_theta(dict(zip(model.names, theta)))
-            cols = np.asarray(current.power_jacobian(state), float)
-            design = Design(samples_now, current, cols, lower, upper, model.theta.copy(), weight,
-                            fold, t, _airborne(recording), frozenset(recording.frame.columns),
-                            ctx.scenario, ctx.world, recording.frame)
-            new = _fit_rows(design, cols, lower, upper, np.ones(n, bool), cols.shape[1])
+            design.base = model.with_theta(dict(zip(model.names, theta)))
+            design.columns = design.aligned(design.base.power_jacobian(state))
+            design.cache.clear()
+            new = _fit_rows(design, design.columns, lower, upper, np.ones(n, bool),
+                            len(model.names))
             if np.allclose(new, theta, rtol=1e-6, atol=1e-9):
                 break
             theta = new
         design.base = model.with_theta(dict(zip(model.names, theta)))
-        design.columns = np.asarray(design.base.power_jacobian(state), float)
+        design.columns = design.aligned(design.base.power_jacobian(state))
         design.cache.clear()
         return design
 
     design = refit(samples)
     if lag_s is None:
-        lag_s = power_lag_s(design, recording.t_s, design.base.power_W(state))
+        lag_s = power_lag_s(design, recording.t_s, lag_columns(design))
     if lag_s:
-        design = refit(replace(samples, power_W=_advance(samples.power_W, recording.t_s, lag_s)))
+        dt = float(np.median(np.diff(recording.t_s)))
+        whole = float(np.floor(lag_s / dt + 1e-9))
+        design = refit(replace(samples, power_W=_advance(samples.power_W, recording.t_s,
+                                                         whole * dt)),
+                       column_delay=lag_s / dt - whole)
     design.lag_s = float(lag_s)
     design.grade_window_m = grade_window_m
     return design
 
 
-def power_lag_s(d: Design, t_s: np.ndarray, predicted_W) -> float:
-    """Delay of the recorded power behind a prediction of it, within ``MAX_LAG_S``
-    (negative: it leads) [s]: the shift with the smallest squared difference, refined between
-    samples by a parabola through the best three."""
+def power_lag_s(d: Design, t_s: np.ndarray, columns: np.ndarray) -> float:
+    """Delay of the recorded power behind the motion, within ``MAX_LAG_S`` (negative: it
+    leads) [s]: the shift of the recorded power that a least-squares fit of ``columns``
+    explains best, refined between samples by a parabola through the best three.
+
+    ``columns`` should hold every candidate's columns beside the baseline's
+    (``lag_columns``): a term the baseline lacks but the power holds (an acceleration's
+    inertia, a turn's torque) peaks at other moments than the baseline's power, and a
+    delay fitted to the baseline alone slides the power towards those moments instead
+    (a 0.45 s lag was read as a 0.17 s lead, and the inertia it hid went unseen)."""
     dt = float(np.median(np.diff(t_s)))
     most = int(min(round(MAX_LAG_S / dt), d.n // 10)) if dt > 0 else 0
     if most == 0:
         return 0.0
-    predicted = np.broadcast_to(np.asarray(predicted_W, float), (d.n,))
+    inner = slice(most, d.n - most)
+    x = np.asarray(columns, float)[inner]
+    x = x / np.maximum(np.linalg.norm(x, axis=0), 1e-300)
+    u, sv, _ = np.linalg.svd(x, full_matrices=False)
+    basis = u[:, sv > sv[0] * 1e-8]  # the columns' span, rank deficiency dropped
     shifts = np.arange(-most, most + 1)
-    ss = np.array([np.mean((_advance(d.y, t_s, k * dt) - predicted)[most:d.n - most] ** 2)
-                   for k in shifts])
+    ss = np.empty(shifts.size)
+    for j, k in enumerate(shifts):
+        y = _advance(d.y, t_s, k * dt)[inner]
+        ss[j] = y @ y - np.sum((basis.T @ y) ** 2)
     i = int(np.argmin(ss))
     if 0 < i < ss.size - 1:
         curve = ss[i - 1] - 2 * ss[i] + ss[i + 1]
@@ -458,6 +508,16 @@ def power_lag_s(d: Design, t_s: np.ndarray, predicted_W) -> float:
     else:
         step = 0.0
     return float((shifts[i] + step) * dt)
+
+
+def lag_columns(d: Design) -> np.ndarray:
+    """The baseline's columns and every applicable linear candidate's (the terms of
+    ``TERM_CANDIDATES``), with a constant: what the delay is estimated against."""
+    cols = [d.columns, np.ones((d.n, 1))]
+    for cand in candidates():
+        if cand.id in TERM_CANDIDATES and cand.applies(d) is None:
+            cols.append(cand.effect(d, None, None).columns)
+    return np.hstack(cols)
 
 
 def _advance(values: np.ndarray, t_s: np.ndarray, lag_s: float) -> np.ndarray:
@@ -526,7 +586,7 @@ def _term_columns(d: Design, term_id: str) -> Effect:
     # a whisker of the term (not 0) sets the clip mask where the baseline has no traction
     # force at all (a drone's drag: without it every sample would read "no force, no power")
     model = d.base.with_terms([*d.base.terms, term], dict.fromkeys(term.coefficients, 1e-9))
-    jac = np.asarray(model.power_jacobian(d.state), float)[:, len(d.base.names):]
+    jac = d.aligned(model.power_jacobian(d.state))[:, len(d.base.names):]
     if term_id == "hover":  # aloft only: a landed drone idles
         jac = jac * d.airborne[:, None]
     lo, hi = _bounds(term.coefficients)
@@ -570,17 +630,27 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     """A mass change at an unknown time: ``payload_kg * per_kg(t) * [t >= t0]``; t0 is the
     training rows' least-squares change time (a scan over every sample, by cumulative sums).
 
-    The residual comes from a fit whose mass terms already took the run's average mass, so
-    a step column ``c`` is judged by its part orthogonal to the whole-run column ``g``:
-    gain ``(r.c)^2 / (c.c - (c.g)^2 / g.g)``, with ``c.g = c.c`` for a step of ``g``."""
+    The residual comes from a fit whose coefficients already took what they could of the
+    change (the mass terms the run's average mass, the ancillary draw a share of it), so a
+    step column ``c`` is judged by its part orthogonal to the baseline's columns ``X``: the
+    fall of the residual sum of squares ``(r.c)^2 / (c.c - c'X (X'X)^-1 X'c)``. Judged
+    against the mass column alone, a change near an end of the run (little left to
+    orthogonalise) looked as good as the true one."""
     g = _mass_per_kg_W(d)
     r = np.where(rows, resid, 0.0)
     gr = np.where(rows, g, 0.0)
-    # sum over t >= t0 of r g and g^2, for every t0 at once
+    x = np.where(rows[:, None], d.columns, 0.0)
+    x = x / np.maximum(np.linalg.norm(x, axis=0), 1e-300)
+    # sums over t >= t0 of r g, g^2 and g X, for every t0 at once
     rg = np.cumsum((r * gr)[::-1])[::-1]
     gg = np.cumsum((gr * gr)[::-1])[::-1]
-    spread = gg * (1.0 - gg / gg[0])
-    valid = (d.t_s >= d.t_s[-1] * 0.05) & (d.t_s <= d.t_s[-1] * 0.95) & (spread > 0)
+    gx = np.cumsum((gr[:, None] * x)[::-1], axis=0)[::-1]
+    explained = np.einsum("ij,ij->i", gx @ np.linalg.pinv(x.T @ x, rcond=1e-10), gx)
+    spread = gg - explained
+    # a change whose step the baseline's columns already span (one that starts where the
+    # mass power starts) has no part of its own: its spread is rounding error
+    valid = ((d.t_s >= d.t_s[-1] * 0.05) & (d.t_s <= d.t_s[-1] * 0.95)
+             & (spread > 1e-6 * gg[0]))
     gain = np.where(valid, rg**2 / np.where(spread > 0, spread, 1.0), -np.inf)
     k = int(np.argmax(gain))
     t0 = float(d.t_s[k])
@@ -616,7 +686,7 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     def drag_with(p):
         windy = d.state.with_(wind_x_mps=p[0] + 0.0 * speed, wind_y_mps=p[1] + 0.0 * speed)
         (phi,) = aero_drag_feature(windy)
-        return p[2] * phi * speed
+        return d.aligned(p[2] * phi * speed)
 
     def fun(p):
         return (drag_with(p) - base_drag - resid)[moving]
@@ -808,8 +878,8 @@ def candidate_columns(d: Design, pool: list[Candidate] | None = None):
 
 @dataclass(frozen=True)
 class Trial:
-    """One candidate judged in one round: held-out RMSE gain, largest |t| of its coefficients,
-    BIC change."""
+    """One candidate (or pair, ``"a+b"``) judged in one round: held-out RMSE gain, largest
+    |t| of its coefficients (a pair: the weaker member's), BIC change, folds no worse."""
 
     id: str
     gain: float
@@ -817,6 +887,7 @@ class Trial:
     bic_change: float
     accepted: bool
     reason: str
+    folds: int = 0
 
 
 @dataclass(frozen=True)
@@ -831,7 +902,8 @@ class Selection:
 
 
 def select(d: Design, pool: list[Candidate]) -> Selection:
-    """Forward selection with a backward pass (module docstring)."""
+    """Forward selection, by pairs when no single candidate passes, with a backward pass
+    (module docstring)."""
     chosen: list[Candidate] = []
     fits = [fit_design(d, [])]
     trials: list[Trial] = []
@@ -842,27 +914,81 @@ def select(d: Design, pool: list[Candidate]) -> Selection:
         scored = []
         for cand in open_pool:
             fit = fit_design(d, [*chosen, cand])
-            scored.append((cand, fit, _judge(cand, fit, current, mean_power)))
+            scored.append(([cand], fit, _judge([cand], fit, current, mean_power)))
         scored.sort(key=lambda s: -s[2].gain)
         trials += [s[2] for s in scored]
         best = next((s for s in scored if s[2].accepted), None)
         if best is None:
+            pairs = _pair_trials(d, chosen, scored, current, mean_power)
+            trials += [s[2] for s in pairs]
+            best = next((s for s in pairs if s[2].accepted), None)
+        if best is None:
             break
-        chosen.append(best[0])
+        chosen += best[0]
         fits.append(best[1])
-        open_pool = [c for c in open_pool if c is not best[0] and not _same_spec(c, best[0])]
+        open_pool = [c for c in open_pool
+                     if not any(c is b or _same_spec(c, b) for b in best[0])]
     chosen, fit = _backward(d, chosen, fits[-1])
     return Selection(chosen, fits[0], fit, trials)
+
+
+def _pair_trials(d: Design, chosen, scored, current: Fit, mean_power_W: float) -> list:
+    """Pairs of the ``PAIR_FROM`` best single candidates (those that helped at all), each
+    fitted together and judged as a whole: two effects can mask each other (a surface's
+    rolling fitted alone takes up part of an in-battery loss and makes the folds without
+    that surface worse), so that neither passes alone though both are there. Best first."""
+    helpful = [s[0][0] for s in scored if s[2].gain > 0][:PAIR_FROM]
+    out = []
+    for i, a in enumerate(helpful):
+        for b in helpful[i + 1:]:
+            if _same_spec(a, b):
+                continue
+            fit = fit_design(d, [*chosen, a, b])
+            out.append(([a, b], fit, _judge([a, b], fit, current, mean_power_W)))
+    return sorted(out, key=lambda s: -s[2].gain)
 
 
 def _same_spec(a: Candidate, b: Candidate) -> bool:
     return a.spec_id == b.spec_id and a.id != "surface_rolling" and b.id != "surface_rolling"
 
 
-def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Trial:
+def _judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) -> Trial:
+    """Judge the candidates ``new`` added to ``current`` together (``fit``): the held-out
+    gain, fold agreement and BIC of the whole addition; each one's power share and t."""
     gain = 1.0 - fit.cv_rmse_W / current.cv_rmse_W if current.cv_rmse_W > 0 else 0.0
-    effect_share = fit.effect_rms_W(cand.id) / max(mean_power_W, 1e-12)
     n_eff = fit.predicted_W.size / current.tau
+    ident = "+".join(c.id for c in new)
+    checks = []  # (id, power share, t, t needed)
+    for cand in new:
+        t_max, need_t, refusal = _significance(cand, fit, current, n_eff)
+        if refusal:
+            return Trial(ident, float(gain), t_max, 0.0, False, refusal, 0)
+        checks.append((cand.id, fit.effect_rms_W(cand.id) / max(mean_power_W, 1e-12),
+                       t_max, need_t))
+    small = next((c for c in checks if c[1] < MIN_EFFECT_SHARE), None)
+    weak = next((c for c in checks if c[2] < c[3]), None)
+
+    def who(check) -> str:  # name the failing member of a pair
+        return f"{check[0]}: " if len(new) > 1 else ""
+
+    bic_change = fit.bic(current.tau) - current.bic(current.tau)
+    # a fold "agrees" when the candidate does not make it worse (within 0.5 %): an effect
+    # that lives on hills helps the folds with hills and leaves the others unchanged
+    folds = int(np.count_nonzero(fit.fold_ss <= current.fold_ss * 1.005))
+    min_gain = MIN_GAIN * len(new)
+    reason = (f"held-out gain {100 * gain:.1f} % (need {100 * min_gain:.0f} %)"
+              if gain < min_gain
+              else f"no worse on {folds} of {N_FOLDS} folds (need {MIN_FOLDS})" if folds < MIN_FOLDS
+              else (f"{who(small)}its power is {100 * small[1]:.2f} % of the mean power RMS "
+                    f"(need {100 * MIN_EFFECT_SHARE:.0f} %)") if small
+              else f"{who(weak)}t = {weak[2]:.1f} (need {weak[3]:.1f})" if weak
+              else f"BIC +{bic_change:.1f}" if bic_change >= 0 else "")
+    t_max = min(c[2] for c in checks)
+    return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds)
+
+
+def _significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
+    """(largest |t| of the candidate's coefficients, the t it needs, a refusal or "")."""
     need_t = MIN_T + (np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0)))) if cand.id in SCANNED
                       else 0.0)
     own = fit.owned(cand.id)
@@ -878,19 +1004,9 @@ def _judge(cand: Candidate, fit: Fit, current: Fit, mean_power_W: float) -> Tria
         t_max = float(np.sqrt(max(0.0, n_eff * np.log(ratio))))
         speed = fit.extra.get("wind.wind_speed_mps", (0.0, 0.0))[0]
         if speed > MAX_WIND_MPS:
-            return Trial(cand.id, float(gain), t_max, 0.0, False,
-                         f"a wind of {speed:.0f} m/s is beyond {MAX_WIND_MPS:.0f} m/s")
-    bic_change = fit.bic(current.tau) - current.bic(current.tau)
-    # a fold "agrees" when the candidate does not make it worse (within 0.5 %): an effect
-    # that lives on hills helps the folds with hills and leaves the others unchanged
-    folds = int(np.count_nonzero(fit.fold_ss <= current.fold_ss * 1.005))
-    reason = (f"held-out gain {100 * gain:.1f} % (need {100 * MIN_GAIN:.0f} %)" if gain < MIN_GAIN
-              else f"no worse on {folds} of {N_FOLDS} folds (need {MIN_FOLDS})" if folds < MIN_FOLDS
-              else (f"its power is {100 * effect_share:.2f} % of the mean power RMS (need "
-                    f"{100 * MIN_EFFECT_SHARE:.0f} %)") if effect_share < MIN_EFFECT_SHARE
-              else f"t = {t_max:.1f} (need {need_t:.1f})" if t_max < need_t
-              else f"BIC +{bic_change:.1f}" if bic_change >= 0 else "")
-    return Trial(cand.id, float(gain), t_max, float(bic_change), not reason, reason)
+            return t_max, need_t, (f"a wind of {speed:.0f} m/s is beyond "
+                                   f"{MAX_WIND_MPS:.0f} m/s")
+    return t_max, need_t, ""
 
 
 def _backward(d: Design, chosen: list[Candidate], full: Fit) -> tuple[list[Candidate], Fit]:
@@ -1032,13 +1148,6 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
     pool = pool or candidates()
     d = build_design(recording, ctx, grade_window_m=grade_window_m)
     selection = select(d, pool)
-    if selection.chosen:
-        # the baseline's delay estimate was made without the missing physics, whose
-        # transients (turns, accelerations) may be what the delay is best seen on
-        lag_s = d.lag_s + power_lag_s(d, recording.t_s, selection.fit.predicted_W)
-        if abs(lag_s - d.lag_s) > 0.02:
-            d = build_design(recording, ctx, grade_window_m=d.grade_window_m, lag_s=lag_s)
-            selection = select(d, pool)
     chosen, baseline, trials = selection.chosen, selection.baseline, selection.trials
     improved = polish(d, chosen, selection.fit)
     resid = d.y - baseline.predicted_W
@@ -1079,7 +1188,7 @@ def polish(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Fit
     extra = len(model.names) - len(d.base.names)
     polished = fit
     for _ in range(rounds):
-        columns = np.asarray(model.power_jacobian(d.state), float)
+        columns = d.aligned(model.power_jacobian(d.state))
         d2 = replace(d, base=model, columns=columns, lower=lower, upper=upper,
                      prior_mean=np.r_[d.prior_mean, np.zeros(extra)],
                      prior_weight=np.r_[d.prior_weight, np.zeros(extra)], cache={})
@@ -1090,7 +1199,7 @@ def polish(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Fit
 
 
 def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -> Finding:
-    params, stderr = _physical_params(d, cand, *improved.params_of(cand.id))
+    params, stderr = _physical_params(improved, cand, *improved.params_of(cand.id))
     without = fit_design(d, [c for c in chosen if c is not cand])
     ss_base = float(np.sum((d.y - baseline.predicted_W) ** 2))
     ss_gain = float(np.sum((d.y - without.predicted_W) ** 2)
@@ -1102,13 +1211,20 @@ def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -
                    label)
 
 
-def _physical_params(d: Design, cand: Candidate, params: dict, stderr: dict):
+def _physical_params(fit: Fit, cand: Candidate, params: dict, stderr: dict):
     """Report parameters as the scenario knows them: per-surface rolling as the surface's
-    own coefficient, a wind by speed and direction (the fitted share left out)."""
+    own coefficient (the fit's default coefficient plus the surface's change, with the
+    variance of the sum: at a steady speed the default coefficient trades with the
+    ancillary draw, and only the change is pinned), a wind by speed and direction (the
+    fitted share left out)."""
     if cand.id == "surface_rolling":
-        base = d.base.coefficient("rolling_kg")
-        params = {k.replace("delta_", ""): base + v for k, v in params.items()}
-        stderr = {k.replace("delta_", ""): v for k, v in stderr.items()}
+        base = fit.names.index("rolling_kg")
+        params, stderr = {}, {}
+        for i in fit.owned(cand.id):
+            name = fit.names[i].split(".", 1)[1].replace("delta_", "")
+            params[name] = float(fit.theta[base] + fit.theta[i])
+            var = fit.cov[base, base] + fit.cov[i, i] + 2.0 * fit.cov[base, i]
+            stderr[name] = float(np.sqrt(max(var, 0.0)))
     if cand.id == "wind":
         params.pop("wind_share", None)
         stderr.pop("wind_share", None)

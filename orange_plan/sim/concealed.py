@@ -26,7 +26,10 @@ How a case is made
    (setpoint 20 C, T_a the ``ambient_C`` column);
    ``battery_resistance``: ``P += k P^2`` (I^2 R at I = P / V: k = R / V^2 [1/W]);
    ``battery_temperature``: ``P += c max(0, 25 - T_b) P^2`` (T_b the ``battery_C`` column).
-   The battery losses come last (they act on everything the battery delivers).
+   The battery losses come last (they act on everything the battery delivers), and their
+   runs stop now and then and climb hills (``_varied_load``): a loss ``k P^2`` differs from
+   a rescaled model only through the load's spread, which a steady load makes smaller than
+   the meter's noise (there, the loss is no longer in the recording to be found).
 4. Measurement, on every case: the recorded power lags the motion by 0.1-0.5 s and carries an
    AR(1) disturbance (correlation time 5-20 s, sd 2-5 % of the mean power) and white noise
    (1-3 %); positions carry white noise; ``soc`` follows the true energy.
@@ -183,6 +186,8 @@ class _Plan:
         ``_ROUTE_PRIORITY`` order)."""
         if self.route_style in ("mixed", "aerial"):
             self.route_style = style
+        elif style == "hills" and self.route_style.startswith("surface:"):
+            self.route_style += "+hills"  # a surface route that climbs between its visits
 
 
 # --- term recipes: each edits the truth / seen scenarios and the plan ----------------------
@@ -334,6 +339,7 @@ def _hvac(plan: _Plan, rng) -> None:
 
 def _battery_resistance(plan: _Plan, rng) -> None:
     loss = rng.uniform(0.03, 0.10)
+    _varied_load(plan, rng)
 
     def add(p, frame, power, _rng):
         k = loss / float(np.mean(power))  # loss fraction `loss` at the mean power
@@ -345,6 +351,7 @@ def _battery_resistance(plan: _Plan, rng) -> None:
 
 def _battery_temperature(plan: _Plan, rng) -> None:
     plan.battery_cold = True
+    _varied_load(plan, rng)
     loss = rng.uniform(0.04, 0.12)
 
     def add(p, frame, power, _rng):
@@ -354,6 +361,16 @@ def _battery_temperature(plan: _Plan, rng) -> None:
         return power + c * cold * power**2
 
     plan.battery_effects.append(add)
+
+
+def _varied_load(plan: _Plan, rng) -> None:
+    """Stops and hills, so that the load varies: an in-battery loss ``k P^2`` differs from a
+    rescaled model only by the curvature ``k (P - mean P)^2``, which a load steady within
+    +-30 % makes smaller than a power meter's noise (the loss is then a mis-set coefficient,
+    not something a recording can show)."""
+    plan.sim_truth.setdefault("stop_every_s", float(rng.uniform(15.0, 40.0)))
+    if plan.kind == "ground":
+        plan.shape_route("hills")
 
 
 def _drift(plan: _Plan, rng) -> None:
@@ -422,7 +439,11 @@ STYLES = {
     "walks": ((10.0, 40.0), (10.0, 120.0), 0.85),
     "turns": ((4.0, 12.0), (45.0, 150.0), 0.0),
     "hills": ((20.0, 60.0), (10.0, 90.0), 0.6),
-    "surface": ((10.0, 40.0), (10.0, 120.0), 0.85),
+    # half the waypoints on the surface: a surface's rolling is its contrast with the
+    # others, and a route nearly all on one surface (91-98 % with 0.85) shows only the
+    # default coefficient, mis-set (a surface route that must also vary its load,
+    # "surface:<name>+hills", takes the other half from the hills)
+    "surface": ((10.0, 40.0), (10.0, 120.0), 0.5),
     "aerial": ((30.0, 120.0), (10.0, 150.0), 0.0),
 }
 
@@ -446,19 +467,25 @@ def _pool_ok(world, style: str, surface: str | None):
 
 
 def _route(rng, world, style: str, length_m: float, v_range_mps: tuple[float, float]) -> Route:
-    """A random collision-free route of at least ``length_m`` (see ``STYLES``)."""
+    """A random collision-free route of at least ``length_m`` (see ``STYLES``; a
+    ``"surface:<name>+hills"`` route takes its non-surface waypoints from the hills)."""
+    style, plus_hills = style.removesuffix("+hills"), style.endswith("+hills")
     surface = style.split(":", 1)[1] if style.startswith("surface:") else None
     (l_lo, l_hi), (t_lo, t_hi), p_pool = STYLES["surface" if surface else style]
-    on_pool = _pool_ok(world, style, surface)
-    pool = _pool_points(rng, world, on_pool) if p_pool > 0 else np.zeros((0, 2))
-    pts = [pool[0] if len(pool) else np.asarray(world.home_xy_m, float)]
+    pools = [_pool_ok(world, style, surface)]
+    if plus_hills:
+        pools.append(_pool_ok(world, "hills", None))
+    points = [_pool_points(rng, world, ok) for ok in pools] if p_pool > 0 else [np.zeros((0, 2))]
+    pts = [points[0][0] if len(points[0]) else np.asarray(world.home_xy_m, float)]
     heading, total = rng.uniform(0, 2 * np.pi), 0.0
     for _ in range(MAX_ROUTE_TRIES):
         if total >= length_m:
             break
         here = pts[-1]
-        from_pool = rng.random() < p_pool
+        which = 0 if rng.random() < p_pool else len(pools) - 1 if plus_hills else None
+        from_pool = which is not None
         if from_pool:  # a pool point whose straight segment stays mostly on the pool
+            on_pool, pool = pools[which], points[which]
             cand = pool[rng.integers(len(pool), size=64)]
             dist = np.hypot(*(cand - here).T)
             keep = dist > l_lo
