@@ -89,7 +89,7 @@ from orange_plan.physics.wind import wind_speed_and_from
 
 MIN_GAIN = 0.02
 """Smallest relative fall of the held-out RMSE for a candidate to be kept [-]."""
-MIN_FOLDS = 4
+MIN_FOLDS = 3
 """Held-out folds (of N_FOLDS) that a kept candidate must not make worse (by more than
 0.5 %) [-]: a real effect helps where it acts and harms nowhere; a fluke fitted to one
 stretch of the run makes the others worse."""
