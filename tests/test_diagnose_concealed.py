@@ -125,3 +125,27 @@ def test_o_carries_the_found_physics_into_predict_and_planning(results, name, tm
         before = path_energy(case.ctx.model, case.ctx.world, xy, 1.0, case.ctx.conditions)
         after = path_energy(ctx.model, ctx.world, xy, 1.0, ctx.conditions)
         assert after.total_J != pytest.approx(before.total_J, rel=1e-6)
+
+
+def test_a_term_the_recording_cannot_tell_apart_is_offered_as_an_alternative():
+    """Seed 4's drift + turning: the cells warm over the first minutes as the drift decays,
+    and the cold-battery loss fits the held-out blocks as well as the drift does (its
+    held-out RMSE is within MIN_GAIN). Diagnosis names one of them; the other must be
+    offered as an alternative, with the held-out RMSE it was measured at, and the
+    evidence must say the recording cannot tell them apart."""
+    from orange_plan.identify.diagnose import MIN_GAIN, candidates, fit_design
+
+    case = concealed_case(["drift", "turning"], 4)
+    result = diagnose(case.recording, case.ctx)
+    offered = {a["term"] for f in result.findings for a in f.alternatives}
+    named = {f.term for f in result.findings}
+    assert {"drift", "turning"} <= named | offered
+    pool = {c.id: c for c in candidates()}
+    for finding in result.findings:
+        for alt in finding.alternatives:
+            chosen = [pool[alt.get("variant", alt["term"])] if c.spec_id == finding.term else c
+                      for c in result.chosen]
+            swapped = fit_design(result.design, chosen)
+            assert swapped.cv_rmse_W == pytest.approx(alt["holdout_rmse_W"])
+            assert swapped.cv_rmse_W <= result.improved.cv_rmse_W * (1 + MIN_GAIN) * 1.01
+            assert "cannot tell them apart" in finding.evidence

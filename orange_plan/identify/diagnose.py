@@ -384,10 +384,17 @@ def _stack(d: Design, chosen, rows):
     ``rows`` only (so a held-out fold never informs them)."""
     cols, lo, hi, names, extra = [d.columns], [d.lower], [d.upper], list(d.base.names), {}
     p = d.columns.shape[1]
-    for cand in chosen:
-        x = np.hstack(cols)
-        resid = d.target - x @ _fit_rows(d, x, np.concatenate(lo), np.concatenate(hi), rows, p)
-        eff = cand.effect(d, resid, rows)
+    rows_key = hash(np.packbits(rows).tobytes())
+    for k, cand in enumerate(chosen):
+        # the effect depends on the rows and the candidates before it only: a wind fitted on
+        # a fold is the same in every later round's trials (its Gauss-Newton is the cost)
+        key = ("effect", cand.id, tuple(c.id for c in chosen[:k]), rows_key)
+        if key not in d.cache:
+            x = np.hstack(cols)
+            resid = d.target - x @ _fit_rows(d, x, np.concatenate(lo), np.concatenate(hi),
+                                             rows, p)
+            d.cache[key] = cand.effect(d, resid, rows)
+        eff = d.cache[key]
         cols.append(eff.columns)
         lo.append(eff.lower)
         hi.append(eff.upper)
@@ -1037,12 +1044,15 @@ class Finding:
     explains_pct: float
     evidence: str
     feature_label: str
+    alternatives: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         out = {"term": self.term, "explains_pct": self.explains_pct, "params": self.params,
                "stderr": self.stderr, "evidence": self.evidence}
         if self.variant:
             out["variant"] = self.variant
+        if self.alternatives:
+            out["alternatives"] = self.alternatives
         return out
 
 
@@ -1148,10 +1158,23 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
     pool = pool or candidates()
     d = build_design(recording, ctx, grade_window_m=grade_window_m)
     selection = select(d, pool)
+    if selection.chosen:
+        # the delay again, against what was found: every candidate's columns, fitted freely,
+        # can imitate a shift (an acceleration's power is the derivative of a steady one),
+        # so the first estimate may be off where the found terms' are not; the delay whose
+        # selection predicts the held-out blocks better is kept
+        lag_s = d.lag_s + power_lag_s(d, recording.t_s, selection.fit.x)
+        if abs(lag_s - d.lag_s) > 0.02:
+            d2 = build_design(recording, ctx, grade_window_m=d.grade_window_m, lag_s=lag_s)
+            again = select(d2, pool)
+            if again.fit.cv_rmse_W < selection.fit.cv_rmse_W:
+                d, selection = d2, again
     chosen, baseline, trials = selection.chosen, selection.baseline, selection.trials
     improved = polish(d, chosen, selection.fit)
     resid = d.y - baseline.predicted_W
-    findings = [_finding(d, c, chosen, improved, baseline) for c in chosen]
+    findings = [_finding(d, c, chosen, improved, baseline,
+                         _alternatives(d, c, chosen, selection.fit, trials, pool))
+                for c in chosen]
     conditions = residual_by_condition(d, resid, baseline.tau)
     result = Diagnosis(
         design=d, baseline=baseline, improved=improved, chosen=chosen, findings=findings,
@@ -1198,7 +1221,8 @@ def polish(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Fit
     return replace(polished, names=names)
 
 
-def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -> Finding:
+def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit,
+             alternatives: list) -> Finding:
     params, stderr = _physical_params(improved, cand, *improved.params_of(cand.id))
     without = fit_design(d, [c for c in chosen if c is not cand])
     ss_base = float(np.sum((d.y - baseline.predicted_W) ** 2))
@@ -1206,9 +1230,38 @@ def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit) -
                     - np.sum((d.y - improved.predicted_W) ** 2))
     explains = float(np.clip(100.0 * ss_gain / ss_base, 0.0, 100.0)) if ss_base > 0 else 0.0
     values, label = cand.feature(d)
+    evidence = _evidence(d, cand, values, label, baseline, without, improved)
+    if alternatives:
+        evidence += "; " + ", ".join(
+            f"{a['term']} would do nearly as well ({a['holdout_rmse_W']:.3g} W)"
+            for a in alternatives) + ": this recording cannot tell them apart"
     return Finding(cand.spec_id, cand.id if cand.id != cand.spec_id else None, params, stderr,
-                   explains, _evidence(d, cand, values, label, baseline, without, improved),
-                   label)
+                   explains, evidence, label, alternatives)
+
+
+def _alternatives(d: Design, cand: Candidate, chosen, fit: Fit, trials, pool) -> list[dict]:
+    """Other candidates that, in ``cand``'s place, predict the held-out blocks within
+    ``MIN_GAIN`` as well as the chosen set (``fit``): the recording cannot tell them apart
+    (a cold battery's loss and a payload dropped as the cells warm both fall with time).
+    Tried: the ``PAIR_FROM`` best single candidates of the trials, by held-out gain."""
+    by_id = {c.id: c for c in pool}
+    others, seen = [], set()
+    for trial in sorted(trials, key=lambda t: -t.gain):
+        other = by_id.get(trial.id)
+        if (other is None or trial.id in seen or trial.gain <= 0 or other in chosen
+                or any(_same_spec(other, c) for c in chosen)):
+            continue
+        seen.add(trial.id)
+        others.append(other)
+        if len(others) == PAIR_FROM:
+            break
+    out = []
+    for other in others:
+        swapped = fit_design(d, [other if c is cand else c for c in chosen])
+        if swapped.cv_rmse_W <= fit.cv_rmse_W * (1.0 + MIN_GAIN):
+            out.append({"term": other.spec_id, "holdout_rmse_W": float(swapped.cv_rmse_W),
+                        **({"variant": other.id} if other.id != other.spec_id else {})})
+    return out
 
 
 def _physical_params(fit: Fit, cand: Candidate, params: dict, stderr: dict):
