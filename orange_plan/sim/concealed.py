@@ -43,7 +43,8 @@ gives a case away; ``payload_kg``, ``surface`` and the wind columns are never wr
 draw are the same constant.)
 
 Effect sizes: the share of the run's energy the concealed term carries (30-min runs at 10 Hz,
-seeds 0-4, README "Concealed-effect cases"): power terms are sized from the simulated mean
+seeds 0-4, README "Concealed-effect cases"; the surface and battery shares were measured
+before those routes changed): power terms are sized from the simulated mean
 power (ancillary 14-22 %, sensor rate 9-16 %, drift 6-16 %, hvac 10-23 %, battery resistance
 4-10 %, battery temperature 6-10 %); motion terms take physical coefficients (rolling 7-27 %,
 surface rolling 5-28 %, drag 15-24 %, grade 14-28 %, turning 9-16 %, wind 5-9 %, payload
