@@ -147,5 +147,20 @@ def test_a_term_the_recording_cannot_tell_apart_is_offered_as_an_alternative():
                       for c in result.chosen]
             swapped = fit_design(result.design, chosen)
             assert swapped.cv_rmse_W == pytest.approx(alt["holdout_rmse_W"])
-            assert swapped.cv_rmse_W <= result.improved.cv_rmse_W * (1 + MIN_GAIN) * 1.01
+            assert swapped.cv_rmse_W <= alt["chosen_holdout_rmse_W"] * (1 + MIN_GAIN)
             assert "cannot tell them apart" in finding.evidence
+
+
+def test_a_drones_payload_is_reported_as_the_mass_change_itself():
+    """A drone's payload changes its hover power as mass^1.5, and the baseline's refit hover
+    power had taken the run's average mass (the step's column is per kg at that inflated
+    hover): read as kilograms directly, the step's coefficient came out 18-25 % low (0.105
+    kg for 0.128 on a noise-free run). Reported through ``with_payload`` on the joint fit's
+    model, the aerial payload of seed 0 is within its uncertainty."""
+    case = concealed_case(["payload"], SEED, kind="aerial")
+    result = diagnose(case.recording, case.ctx)
+    (finding,) = [f for f in result.findings if f.term == "payload"]
+    true = case.truth["payload"]["payload_kg"]
+    value, sd = finding.params["payload_kg"], finding.stderr["payload_kg"]
+    assert abs(value - true) <= Z_MAX * sd, (value, sd, true)
+    assert abs(value - true) < 0.1 * abs(true)
