@@ -37,7 +37,9 @@ best one is accepted only when all of these hold:
 When no single candidate passes, pairs of the best few are tried, fitted together and judged
 as one addition (each member must still be significant and worth a term): two effects can
 mask each other, so that neither passes alone. A backward pass then drops any chosen term
-the others make redundant. Non-linear parameters (the time a payload changes, a wind vector)
+the others make redundant, and each chosen term is judged once more, added last to the
+others with those inside the model (``_confirm``: a found force term moves the clip that
+its linear column was built at). Non-linear parameters (the time a payload changes, a wind vector)
 are estimated inside each fold on its training blocks only.
 
 Before any of this, the power's delay behind the motion is estimated against the baseline's
