@@ -129,12 +129,18 @@ HOVER_MASS_EXPONENT = 1.5
 """Hover power grows as weight^1.5 (momentum theory: induced power ~ T^1.5 / sqrt(rho A))."""
 
 
+def mass_exponents(names) -> np.ndarray:
+    """Power of the mass ratio each coefficient scales with: 1 for the mass-proportional
+    ones, ``HOVER_MASS_EXPONENT`` for a hover power, 0 for the rest (so also each one's
+    relative change per relative change of mass, at the scenario's mass)."""
+    return np.array([1.0 if is_mass_coefficient(n) else
+                     HOVER_MASS_EXPONENT if n == "hover_W" else 0.0 for n in names])
+
+
 def mass_scales(names, ratio: float) -> np.ndarray:
     """Factor on each coefficient when the moving mass is ``ratio`` times the scenario's:
-    ``ratio`` for the mass-proportional ones, ``ratio ** HOVER_MASS_EXPONENT`` for a hover
-    power, 1 for the rest."""
-    return np.array([ratio if is_mass_coefficient(n) else
-                     ratio**HOVER_MASS_EXPONENT if n == "hover_W" else 1.0 for n in names])
+    ``ratio ** mass_exponents``."""
+    return float(ratio) ** mass_exponents(names)
 
 
 def with_payload(model: EnergyModel, mass_kg: float, extra_kg: float) -> EnergyModel:

@@ -79,13 +79,7 @@ from orange_plan.identify.locate import (
     residual_by_condition,
     residual_by_surface,
 )
-from orange_plan.model_builder import (
-    HOVER_MASS_EXPONENT,
-    SURFACE_PREFIX,
-    is_mass_coefficient,
-    make_term,
-    with_payload,
-)
+from orange_plan.model_builder import SURFACE_PREFIX, make_term, mass_exponents, with_payload
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.terms import TERMS, aero_drag_feature, spec_id
 from orange_plan.physics.wind import wind_speed_and_from
@@ -317,7 +311,6 @@ class Fit:
     names : coefficient names (baseline, then candidates)
     fold_ss : held-out sum of squared errors per fold [W^2]
     x : the design's columns on all samples (n, k) [W per unit]
-    cov : covariance of ``theta`` (autocorrelation-inflated; ``sd`` is its diagonal's root)
     """
 
     theta: np.ndarray
@@ -331,7 +324,6 @@ class Fit:
     names: tuple
     fold_ss: np.ndarray
     x: np.ndarray
-    cov: np.ndarray = None
 
     def bic(self, tau: float) -> float:
         """Bayesian information criterion with ``n / tau`` effective samples; compare fits
@@ -386,7 +378,7 @@ def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     fold_ss = np.bincount(d.fold, (d.y - held) ** 2, minlength=N_FOLDS)
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
-               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x, cov)
+               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x)
 
 
 def _stack(d: Design, chosen, rows):
@@ -639,16 +631,14 @@ def _surfaces_seen(d: Design, share: float = 0.05) -> list[str]:
 
 def _mass_per_kg_W(d: Design) -> np.ndarray:
     """Battery power per kg of extra moving mass at the baseline coefficients [W/kg]: the
-    derivative of ``model_builder.mass_scales`` (the simulator's payload) at no extra mass."""
-    mass = d.scenario.robot.mass_kg
-    theta = d.base.theta
-    per_kg = np.zeros(d.n)
-    for i, name in enumerate(d.base.names):
-        if is_mass_coefficient(name):
-            per_kg += d.columns[:, i] * theta[i] / mass
-    if "hover_W" in d.base.names:  # d(ratio^e)/d(ratio) = e at no extra mass
-        per_kg += HOVER_MASS_EXPONENT * d.base.coefficient("hover_W") / mass * d.airborne
-    return per_kg
+    derivative of ``model_builder.mass_scales`` (the simulator's payload) at no extra mass,
+    ``sum_i column_i theta_i exponent_i / m``; a hover power only aloft (landed, it idles)."""
+    columns = d.columns
+    if "hover_W" in d.base.names:
+        columns = columns.copy()
+        columns[:, d.base.names.index("hover_W")] *= d.airborne
+    weights = d.base.theta * mass_exponents(d.base.names) / d.scenario.robot.mass_kg
+    return columns @ weights
 
 
 def _payload_effect(d: Design, resid, rows) -> Effect:
@@ -971,11 +961,11 @@ def _confirm(d: Design, chosen: list[Candidate], fit: Fit, mean_power_W: float):
     kept = list(chosen)
     for cand in list(chosen):
         rest = [c for c in kept if c is not cand]
-        d2, others, _, _ = _absorb(d, rest, fit_design(d, rest))
+        d2, others, _, _ = _absorb(d, rest, _fit_of(d, rest))
         without = fit_design(d2, others)
         if not _judge([cand], fit_design(d2, [*others, cand]), without, mean_power_W).accepted:
             kept = rest
-    return (kept, fit) if len(kept) == len(chosen) else (kept, fit_design(d, kept))
+    return (kept, fit) if len(kept) == len(chosen) else (kept, _fit_of(d, kept))
 
 
 def _rivals(cand: Candidate, chosen, trials, pool) -> list[Candidate]:
@@ -1071,6 +1061,15 @@ def _significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
     return t_max, need_t, ""
 
 
+def _fit_of(d: Design, chosen: list[Candidate]) -> Fit:
+    """``fit_design`` of a set of chosen candidates, kept on the design: the fit without one
+    found term is wanted by the backward pass, ``_confirm`` and each finding's evidence."""
+    key = ("fit", tuple(c.id for c in chosen))
+    if key not in d.cache:
+        d.cache[key] = fit_design(d, chosen)
+    return d.cache[key]
+
+
 def _backward(d: Design, chosen: list[Candidate], full: Fit) -> tuple[list[Candidate], Fit]:
     """Drop a chosen term the others make redundant (its removal costs < MIN_GAIN / 2);
     ``full`` is the fit with all of ``chosen``. Returns the kept ones and their fit."""
@@ -1078,7 +1077,7 @@ def _backward(d: Design, chosen: list[Candidate], full: Fit) -> tuple[list[Candi
         return chosen, full
     for cand in list(chosen):
         rest = [c for c in chosen if c is not cand]
-        reduced = fit_design(d, rest)
+        reduced = _fit_of(d, rest)
         if reduced.cv_rmse_W <= full.cv_rmse_W * (1 + MIN_GAIN / 2):
             chosen = rest
             full = reduced
@@ -1241,7 +1240,7 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
         verdict="missing physics found" if findings else "no missing physics found",
         evidence=_null_evidence(d, baseline, trials) if not findings else
         "; ".join(f.evidence for f in findings))
-    result.model, result.scenario_changes = improved_model(d, chosen, improved)
+    result.model, result.scenario_changes = improved_model(d, chosen, improved, findings)
     return result
 
 
@@ -1314,7 +1313,7 @@ def _start_value(values: dict, owner: str, name: str) -> float:
 def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit,
              alternatives: list) -> Finding:
     params, stderr = _physical_params(d, improved, cand, *improved.params_of(cand.id))
-    without = fit_design(d, [c for c in chosen if c is not cand])
+    without = _fit_of(d, [c for c in chosen if c is not cand])
     ss_base = float(np.sum((d.y - baseline.predicted_W) ** 2))
     ss_gain = float(np.sum((d.y - without.predicted_W) ** 2)
                     - np.sum((d.y - improved.predicted_W) ** 2))
@@ -1347,29 +1346,16 @@ def _alternatives(d: Design, cand: Candidate, chosen, fit: Fit, trials, pool) ->
 
 
 def _physical_params(d: Design, fit: Fit, cand: Candidate, params: dict, stderr: dict):
-    """Report parameters as the scenario knows them: per-surface rolling as the surface's
-    own coefficient (the fit's default coefficient plus the surface's change, with the
-    variance of the sum: at a steady speed the default coefficient trades with the
-    ancillary draw, and only the change is pinned), a wind by speed and direction (the
-    fitted share left out), a payload as the mass change itself (``payload_mass_kg``)."""
+    """Report parameters of the polished fit as the scenario knows them: per-surface rolling
+    as the surfaces driven on (``polish`` fits each one's own coefficient), a wind by speed
+    and direction (the fitted share left out), a payload as the mass change itself
+    (``payload_mass_kg``)."""
     if cand.id == "payload":
         params["payload_kg"], stderr["payload_kg"] = payload_mass_kg(d, fit)
     if cand.id == "surface_rolling":
-        base = fit.names.index("rolling_kg")
         seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d)}
-        params, stderr = {}, {}
-        for i in fit.owned(cand.id):
-            name = fit.names[i].split(".", 1)[1]
-            if name.startswith("delta_"):  # a change from the default (fit_design's form)
-                name = name.removeprefix("delta_")
-                value = fit.theta[base] + fit.theta[i]
-                var = fit.cov[base, base] + fit.cov[i, i] + 2.0 * fit.cov[base, i]
-            elif name in seen:  # the surface's own coefficient (polish's form)
-                value, var = fit.theta[i], fit.cov[i, i]
-            else:
-                continue
-            params[name] = float(value)
-            stderr[name] = float(np.sqrt(max(var, 0.0)))
+        params = {k: v for k, v in params.items() if k in seen}
+        stderr = {k: v for k, v in stderr.items() if k in seen}
     if cand.id == "wind":
         params.pop("wind_share", None)
         stderr.pop("wind_share", None)
@@ -1437,9 +1423,11 @@ def _null_evidence(d: Design, baseline: Fit, trials: list[Trial]) -> str:
 # --- the model with the findings ----------------------------------------------------------------
 
 
-def improved_model(d: Design, chosen: list[Candidate], fit: Fit) -> tuple[EnergyModel, dict]:
-    """The baseline's terms plus the found terms, at the joint fit's coefficients, and the
-    scenario values a non-term finding changes (a wind; a payload as the mass now carried).
+def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
+                   findings: list[Finding]) -> tuple[EnergyModel, dict]:
+    """The baseline's terms plus the found terms, at the polished fit's coefficients, and
+    the scenario values a non-term finding changes (a wind; a payload as the mass now
+    carried, the finding's kilograms).
 
     Coefficient variances: the joint fit's for fitted ones.
     """
@@ -1450,18 +1438,9 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit) -> tuple[Energy
     names = d.world.map.surface_names
     for cand in chosen:
         own, own_sd = fit.params_of(cand.id)
-        if cand.id == "surface_rolling":
-            terms.insert([t.id for t in terms].index("rolling") + 1,
-                         make_term("surface_rolling", names))
-            for s in names:
-                name, delta = f"{SURFACE_PREFIX}{s}", f"delta_{SURFACE_PREFIX}{s}"
-                if name in own:  # polished: the surface's own coefficient
-                    values[name], variances[name] = own[name], own_sd[name] ** 2
-                else:
-                    values[name] = values["rolling_kg"] + own.get(delta, 0.0)
-                    variances[name] = variances["rolling_kg"] + own_sd.get(delta, 0.0) ** 2
-        elif cand.id == "payload":
-            changes["payload_kg"] = payload_mass_kg(d, fit)[0]
+        if cand.id == "payload":
+            changes["payload_kg"] = next(f.params["payload_kg"] for f in findings
+                                         if f.term == "payload")
         elif cand.id == "wind":
             speed, from_deg = wind_speed_and_from(own["wind_x_mps"], own["wind_y_mps"])
             # the drag under that wind is the one fitted with it (the baseline's coefficient
@@ -1472,7 +1451,10 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit) -> tuple[Energy
             changes["environment.wind_from_deg"] = float(from_deg) % 360.0
         else:
             term = make_term(cand.id, names)
-            terms.append(term)
+            # surface_rolling stands right after rolling (model_builder's order)
+            at = [t.id for t in terms].index("rolling") + 1 if term.id == "surface_rolling" \
+                else len(terms)
+            terms.insert(at, term)
             for c in term.coefficients:
                 values[c] = own[c]
                 variances[c] = own_sd[c] ** 2

@@ -483,7 +483,8 @@ def _route(rng, world, style: str, length_m: float, v_range_mps: tuple[float, fl
         if total >= length_m:
             break
         here = pts[-1]
-        which = 0 if rng.random() < p_pool else len(pools) - 1 if plus_hills else None
+        # pool 0 (the style's) with p_pool, else the hills pool if any, else a free step
+        which = 0 if rng.random() < p_pool else (1 if plus_hills else None)
         from_pool = which is not None
         if from_pool:  # a pool point whose straight segment stays mostly on the pool
             on_pool, pool = pools[which], points[which]
