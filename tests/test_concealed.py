@@ -31,6 +31,7 @@ from orange_plan.sim.concealed import (
     PAIRS,
     RECIPES,
     SCENARIOS,
+    SURFACE_SHARE,
     concealed_case,
     concealed_suite,
 )
@@ -193,14 +194,17 @@ def test_scenario_model_lacks_the_term(suite, term):
         assert ctx.scenario.environment.wind_speed_mps == 0
 
 
-def test_surface_rolling_route_spends_time_on_the_surface(suite):
-    case = suite["surface_rolling"]
-    (name,) = case.truth["surface_rolling"]
-    surface = name.removeprefix("rolling_kg_")
+@pytest.mark.parametrize("name", ["surface_rolling", "surface_rolling+battery_resistance"])
+def test_surface_route_drives_on_and_off_its_surface(suite, name):
+    """A surface's rolling is its contrast with the others: both must be driven (the pair's
+    route, which also climbs the hills, once spent 1.5-55 % on the surface)."""
+    case = suite[name]
+    (param,) = case.truth["surface_rolling"]
+    surface = param.removeprefix("rolling_kg_")
     world = case.ctx.world
     code = world.surface_code_at(case.frame["x_m"], case.frame["y_m"])
     on = np.mean(code == world.map.surface_names.index(surface))
-    assert on > 0.3, on
+    assert SURFACE_SHARE[0] <= on <= SURFACE_SHARE[1], on
 
 
 def test_conditions_columns_vary_and_are_not_monotone(suite):

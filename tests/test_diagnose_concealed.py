@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import pytest
 
-from orange_plan.identify.diagnose import diagnose
+from orange_plan.bench.diagnose import oracle
+from orange_plan.identify.diagnose import MIN_T, diagnose
 from orange_plan.physics.terms import spec_id
 from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
 
@@ -188,3 +189,19 @@ def test_bounded_solve_leaves_an_all_zero_column_at_zero():
     theta = _solve(x.T @ x, x.T @ y, np.zeros(3) - 10, np.full(3, np.inf))
     assert theta[2] == 0.0
     np.testing.assert_allclose(theta[:2], [2.0, -1.0], atol=0.01)
+
+
+def test_the_oracle_tells_a_term_in_the_recording_from_one_that_is_not(results):
+    """``bench diagnose``'s oracle (diagnosis told the true terms, a payload its true time)
+    splits the benchmark's misses into selection failures and effects the noise hides, so it
+    must call a concealed term detectable and a term that was never added undetectable."""
+    for name in ("turning", "payload"):
+        case, result = results(name)
+        (told,) = oracle(result, case.truth)
+        assert told["detectable"] and told["t"] > MIN_T, (name, told)
+    case, result = results("null-ground")
+    (absent,) = oracle(result, {"battery_resistance": {"battery_loss_per_W": 1e-3}})
+    assert not absent["detectable"], absent
+    # a term that cannot apply to the run (a ground robot's hover) is not fitted at all
+    (inapplicable,) = oracle(result, {"hover": {"hover_W": 40.0}})
+    assert not inapplicable["detectable"] and inapplicable["t"] == 0.0

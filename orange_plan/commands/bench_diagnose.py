@@ -79,9 +79,13 @@ def _summary_table(summary: dict) -> Table:
                       f"{m['false_positives']} ({m['false_positives_on_nulls']})",
                       f"{m['median_holdout_improvement_pct']:.1f} %",
                       f"{m['median_seconds']:.2f} / {m['max_seconds']:.2f}")
+    hidden = "; ".join(summary["undetectable"]) or "none"
     table.caption = (f"parameters within 3 sd: {summary['params_within_3sd']} / "
                      f"{summary['params']}, median relative error "
-                     f"{100 * summary['params_median_rel_error']:.1f} %")
+                     f"{100 * summary['params_median_rel_error']:.1f} %\n"
+                     f"detectable when told the true terms: {summary['terms_detectable']}, "
+                     f"of which diagnosis found {summary['detectable_found']}; "
+                     f"hidden by the noise: {hidden}")
     return table
 
 

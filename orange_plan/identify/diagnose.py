@@ -34,7 +34,7 @@ best one is accepted only when all of these hold:
 * the Bayesian information criterion, with the *effective* number of samples
   ``n / tau``, falls.
 
-When no single candidate passes, pairs of the best few are tried, fitted together and judged
+When no single candidate passes, every pair of candidates is tried, fitted together and judged
 as one addition (each member must still be significant and worth a term): two effects can
 mask each other, so that neither passes alone. A backward pass then drops any chosen term
 the others make redundant, and each chosen term is judged once more, added last to the
@@ -119,9 +119,9 @@ scan's t statistics is itself large, so their t must exceed MIN_T by the scan's 
 maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
 that maximum grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff)
 of independent tests: on the null cases the scan's largest t was 1.7-3.2."""
-PAIR_FROM = 4
-"""Single candidates (the best by held-out gain) whose pairs are tried when none passes
-alone [-]."""
+RIVALS = 4
+"""Single candidates (the best by held-out gain) checked as alternatives to a found term
+[-]."""
 N_BLOCKS = 20
 """Equal-time blocks of the recording; fold k holds out blocks k, k + N_FOLDS, ... [-]."""
 N_FOLDS = 5
@@ -676,7 +676,13 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     near = valid & (gain >= gain[k] - float(np.mean(r[rows] ** 2)) * tau)
     dt = float(np.median(np.diff(d.t_s)))
     sd = max(0.5 * float(np.ptp(d.t_s[near])), dt) if near.any() else dt
-    col = (g * (d.t_s >= t0))[:, None]
+    return payload_step(d, t0, sd)
+
+
+def payload_step(d: Design, t0: float, sd: float = 0.0) -> Effect:
+    """The payload's column for a change at ``t0`` [s] (standard error ``sd``): the power per
+    kg of extra mass from then on [W/kg]."""
+    col = (_mass_per_kg_W(d) * (d.t_s >= t0))[:, None]
     # physical range: the robot cannot drop more than most of itself, nor carry more than
     # twice its mass (a fold whose scan lands on a fluke must not extrapolate wildly)
     mass = d.scenario.robot.mass_kg
@@ -969,7 +975,7 @@ def _confirm(d: Design, chosen: list[Candidate], fit: Fit, mean_power_W: float):
 
 
 def _rivals(cand: Candidate, chosen, trials, pool) -> list[Candidate]:
-    """The ``PAIR_FROM`` best single candidates of the trials (by held-out gain) that could
+    """The ``RIVALS`` best single candidates of the trials (by held-out gain) that could
     stand in ``cand``'s place: not chosen, not the same vocabulary term as a chosen one."""
     by_id = {c.id: c for c in pool}
     out = []
@@ -979,20 +985,22 @@ def _rivals(cand: Candidate, chosen, trials, pool) -> list[Candidate]:
                 or any(_same_spec(other, c) for c in chosen)):
             continue
         out.append(other)
-        if len(out) == PAIR_FROM:
+        if len(out) == RIVALS:
             break
     return out
 
 
 def _pair_trials(d: Design, chosen, scored, current: Fit, mean_power_W: float) -> list:
-    """Pairs of the ``PAIR_FROM`` best single candidates (those that helped at all), each
-    fitted together and judged as a whole: two effects can mask each other (a surface's
-    rolling fitted alone takes up part of an in-battery loss and makes the folds without
-    that surface worse), so that neither passes alone though both are there. Best first."""
-    helpful = [s[0][0] for s in scored if s[2].gain > 0][:PAIR_FROM]
+    """Every pair of the single candidates, each fitted together and judged as a whole: two
+    effects can mask each other (a surface's rolling fitted alone takes up part of an
+    in-battery loss and makes the folds without that surface worse), so that neither passes
+    alone though both are there, and one of them may even make the held-out fit worse alone
+    (an in-battery loss beside a surface: -0.7 % alone, +17 % with the surface's rolling;
+    pairs of the 4 best singles only missed it). Best first."""
+    singles = [s[0][0] for s in scored]
     out = []
-    for i, a in enumerate(helpful):
-        for b in helpful[i + 1:]:
+    for i, a in enumerate(singles):
+        for b in singles[i + 1:]:
             if _same_spec(a, b):
                 continue
             fit = fit_design(d, [*chosen, a, b])
@@ -1012,7 +1020,7 @@ def _judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) ->
     ident = "+".join(c.id for c in new)
     checks = []  # (id, power share, t, t needed)
     for cand in new:
-        t_max, need_t, refusal = _significance(cand, fit, current, n_eff)
+        t_max, need_t, refusal = significance(cand, fit, current, n_eff)
         if refusal:
             return Trial(ident, float(gain), t_max, 0.0, False, refusal, 0)
         checks.append((cand.id, fit.effect_rms_W(cand.id) / max(mean_power_W, 1e-12),
@@ -1039,8 +1047,9 @@ def _judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) ->
     return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds)
 
 
-def _significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
-    """(largest |t| of the candidate's coefficients, the t it needs, a refusal or "")."""
+def significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
+    """(largest |t| of the candidate's coefficients in ``fit``, the t it needs, a refusal or
+    ""); ``current`` is the fit without it, ``n_eff`` the effective sample count."""
     need_t = MIN_T + (np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0)))) if cand.id in SCANNED
                       else 0.0)
     own = fit.owned(cand.id)

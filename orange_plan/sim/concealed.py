@@ -11,9 +11,11 @@ already has). Ground cases drive the Kiwibot on the hilly campus
 How a case is made
 ------------------
 1. Motion: ``sim.simulator.simulate`` drives a random route (``_route``: turns, stops, hills
-   or a surface as the effect needs; speeds drawn per vertex) under the *truth* scenario,
-   whose model has the concealed motion terms with their true coefficients (``rolling``,
-   ``surface_rolling``, ``aero_drag``, ``grade``, ``inertia``, ``regen``, ``turning``) or the
+   or a surface as the effect needs; speeds drawn per vertex; a surface case's route is drawn
+   again until a quarter to three quarters of the drive is on its surface, ``SURFACE_SHARE``)
+   under the *truth* scenario, whose model has the concealed motion terms with their true
+   coefficients (``rolling``, ``surface_rolling``, ``aero_drag``, ``grade``, ``inertia``,
+   ``regen``, ``turning``) or the
    simulator's truth-only effects (``wind``: mean + Ornstein-Uhlenbeck gusts, not recorded;
    ``payload``: mass change at ``payload_from_s``). Aerial runs lose the simulator's rest at
    both ends, so "stationary at the ends" means landed (``hover``).
@@ -669,11 +671,16 @@ def _drive(plan: _Plan, ctx: Context, rng, duration_s: float, rate_Hz: float):
     lo = 0.8 if plan.route_style == "fast" else 0.6
     v_range = (max(robot.v_min_mps, lo * robot.v_max_mps), robot.v_max_mps)
     style = plan.route_style if plan.route_style != "fast" else "aerial"
-    route = _route(rng, ctx.world, style, 1.2 * robot.v_max_mps * drive_s, v_range)
     truth = Truth(**plan.sim_truth)
-    sim = simulate(ctx, route, truth, seed=int(rng.integers(2**31)), sample_rate_Hz=rate_Hz,
-                   max_duration_s=drive_s)
-    frame = sim.frame
+    for _ in range(SURFACE_TRIES):
+        route = _route(rng, ctx.world, style, 1.2 * robot.v_max_mps * drive_s, v_range)
+        frame = simulate(ctx, route, truth, seed=int(rng.integers(2**31)),
+                         sample_rate_Hz=rate_Hz, max_duration_s=drive_s).frame
+        if _surface_share_ok(ctx, style, frame):
+            break
+    else:
+        raise OrangeError(f"no {style} route spent {SURFACE_SHARE[0]:.0%}-{SURFACE_SHARE[1]:.0%}"
+                          f" of its time on the surface in {SURFACE_TRIES} tries")
     offset_s = 0.0
     if plan.kind == "aerial":  # no hovering rest at the ends: stationary at the ends = landed
         moving = np.flatnonzero(frame["v_mps"].to_numpy() > 0)
@@ -685,6 +692,25 @@ def _drive(plan: _Plan, ctx: Context, rng, duration_s: float, rate_Hz: float):
         frame, shift = _with_landed_ends(frame, ctx, landed_s, 1.0 / rate_Hz)
         offset_s += shift
     return frame, offset_s
+
+
+SURFACE_SHARE = (0.25, 0.75)
+"""Share of its driving time a surface case spends on its surface [-]: a surface's rolling is
+its contrast with the others, so both must be driven (a route nearly all on the surface shows
+the default coefficient mis-set; one that only brushes it, as a surface route that also
+climbs the hills could, hides the surface under the noise)."""
+SURFACE_TRIES = 50
+"""Routes drawn before a surface case gives up on ``SURFACE_SHARE`` [-]."""
+
+
+def _surface_share_ok(ctx: Context, style: str, frame: pd.DataFrame) -> bool:
+    """True unless ``style`` is a surface route whose drive is outside ``SURFACE_SHARE``."""
+    if not style.startswith("surface:"):
+        return True
+    surface = style.removeprefix("surface:").removesuffix("+hills")
+    code = ctx.world.map.surface_names.index(surface)
+    on = ctx.world.surface_code_at(frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float))
+    return SURFACE_SHARE[0] <= float(np.mean(on == code)) <= SURFACE_SHARE[1]
 
 
 def _with_landed_ends(frame: pd.DataFrame, ctx: Context, landed_s, dt: float):
