@@ -692,40 +692,57 @@ def payload_step(d: Design, t0: float, sd: float = 0.0) -> Effect:
 
 def _wind_effect(d: Design, resid, rows) -> Effect:
     """An unreported wind: the drag term under a wind vector w in place of the baseline's
-    drag (under the scenario's wind). w and the drag coefficient k are fitted together to the
-    training rows (Gauss-Newton from the scenario's wind and the baseline's coefficient: the
-    baseline's refit took part of the wind's mean drag into its coefficient, so k must be
-    free to give it back); what is judged is the wind's change from the scenario's."""
+    drag (under the scenario's wind), by variable projection: for each w, the drag
+    coefficient k and the baseline's other coefficients are solved linearly on the training
+    rows, and w minimises what is left (Gauss-Newton from the scenario's wind). A drag
+    ``k |v - w|^2`` identifies ``k w`` through the heading but ``k |w|^2`` only against the
+    constant loads, so w and k are estimated with those loads free: fitted against the
+    baseline's fixed columns, a wind came out 2 x its true speed with a standard error 3-6 x
+    too small (the drone's wind + payload cases). What is judged is the wind's change from the
+    scenario's."""
     from scipy.optimize import least_squares
 
     drag_i = d.base.names.index("drag_kg_per_m")
-    c = d.base.theta[drag_i]
-    base_drag = d.columns[:, drag_i] * c
+    base_drag = d.columns[:, drag_i] * d.base.theta[drag_i]
     speed = np.asarray(d.state.speed_mps)
     moving = (speed > 0.1) & rows
+    others = np.delete(d.columns, drag_i, axis=1)[moving]
+    target = (resid + base_drag)[moving] + others @ np.delete(d.base.theta, drag_i)
 
-    def drag_with(p):
-        windy = d.state.with_(wind_x_mps=p[0] + 0.0 * speed, wind_y_mps=p[1] + 0.0 * speed)
+    def drag_per_k(w):
+        windy = d.state.with_(wind_x_mps=w[0] + 0.0 * speed, wind_y_mps=w[1] + 0.0 * speed)
         (phi,) = aero_drag_feature(windy)
-        return d.aligned(p[2] * phi * speed)
+        return d.aligned(phi * speed)
 
-    def fun(p):
-        return (drag_with(p) - base_drag - resid)[moving]
+    def solve(w):
+        x = np.column_stack([drag_per_k(w)[moving], others])
+        theta = np.linalg.lstsq(x, target, rcond=None)[0]
+        return theta, x
+
+    def fun(w):
+        theta, x = solve(w)
+        return x @ theta - target
 
     assumed = np.array([np.mean(d.state.wind_x_mps), np.mean(d.state.wind_y_mps)], float)
-    sol = least_squares(fun, np.r_[assumed, c], method="lm",
-                        x_scale=np.array([1.0, 1.0, max(c, 1e-6)]))
-    jac = sol.jac
+    sol = least_squares(fun, assumed, method="lm", x_scale=np.array([1.0, 1.0]))
+    theta, x = solve(sol.x)
+    k = float(theta[0])
+    # the joint Jacobian (w, k, the other coefficients) at the solution gives w's covariance
+    # with everything it trades against
+    step = 1e-4
+    dw = [(drag_per_k(sol.x + step * e)[moving] - x[:, 0]) * k / step for e in np.eye(2)]
+    jac = np.column_stack([*dw, x])
     s2 = float(np.mean(sol.fun**2)) * max(1.0, inflation_factor(sol.fun, d.samples.subset(moving),
                                                                  INFLATION_BLOCK_S))
-    cov = (np.linalg.pinv(jac.T @ jac) * s2)[:2, :2]
-    speed_mps, from_deg = wind_speed_and_from(sol.x[0], sol.x[1])
+    full_cov = _covariance(jac) * s2
+    cov = full_cov[:2, :2]
+    wx, wy = sol.x
+    speed_mps, from_deg = wind_speed_and_from(wx, wy)
     # delta method for speed and direction
-    wx, wy = sol.x[:2]
     r2 = max(wx * wx + wy * wy, 1e-12)
     g_speed = np.array([wx, wy]) / np.sqrt(r2)
     g_dir = np.degrees(np.array([-wy, wx]) / r2)
-    change = sol.x[:2] - assumed
+    change = sol.x - assumed
     g_change = change / max(float(np.hypot(*change)), 1e-12)
     extra = {"wind_change_mps": (float(np.hypot(*change)),
                                  float(np.sqrt(g_change @ cov @ g_change))),
@@ -733,12 +750,23 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
              "wind_y_mps": (float(wy), float(np.sqrt(cov[1, 1]))),
              "wind_speed_mps": (float(speed_mps), float(np.sqrt(g_speed @ cov @ g_speed))),
              "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir))),
-             "drag_kg_per_m": (float(sol.x[2]), float(np.sqrt(
-                 (np.linalg.pinv(jac.T @ jac) * s2)[2, 2])))}
-    col = (drag_with(sol.x) - base_drag)[:, None]
+             "drag_kg_per_m": (k, float(np.sqrt(full_cov[2, 2])))}
+    col = (k * drag_per_k(sol.x) - base_drag)[:, None]
     # the column enters at its own size (a share held at 1; a free share would let a fluke
     # scale a small wind into a large effect)
     return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra)
+
+
+def _covariance(jac: np.ndarray) -> np.ndarray:
+    """``(J'J)^+`` with the columns scaled to unit norm first (a Jacobian whose columns differ
+    by orders of magnitude, or repeat one another, otherwise gives negative variances from
+    rounding); a column that is all zero gets variance 0 [per unit^2]."""
+    norm = np.linalg.norm(jac, axis=0)
+    scale = np.where(norm > 0, norm, 1.0)
+    js = jac / scale
+    cov = np.linalg.pinv(js.T @ js, rcond=1e-10, hermitian=True) / np.outer(scale, scale)
+    cov[np.diag_indices_from(cov)] = np.clip(np.diag(cov), 0.0, None)
+    return cov
 
 
 def _applies_term(term_id: str, needs: Callable | None = None):
