@@ -198,6 +198,11 @@ class Design:
         return (1.0 - f) * v + f * np.concatenate([v[:1], v[:-1]])
 
     @property
+    def mean_power_W(self) -> float:
+        """Mean |recorded power|: the yardstick of every "share of the power" test [W]."""
+        return float(np.mean(np.abs(self.y)))
+
+    @property
     def y(self) -> np.ndarray:
         return self.samples.power_W
 
@@ -633,12 +638,14 @@ def _mass_per_kg_W(d: Design) -> np.ndarray:
     """Battery power per kg of extra moving mass at the baseline coefficients [W/kg]: the
     derivative of ``model_builder.mass_scales`` (the simulator's payload) at no extra mass,
     ``sum_i column_i theta_i exponent_i / m``; a hover power only aloft (landed, it idles)."""
-    columns = d.columns
-    if "hover_W" in d.base.names:
-        columns = columns.copy()
-        columns[:, d.base.names.index("hover_W")] *= d.airborne
-    weights = d.base.theta * mass_exponents(d.base.names) / d.scenario.robot.mass_kg
-    return columns @ weights
+    if "mass_per_kg" not in d.cache:  # the scan and every step column share it
+        columns = d.columns
+        if "hover_W" in d.base.names:
+            columns = columns.copy()
+            columns[:, d.base.names.index("hover_W")] *= d.airborne
+        weights = d.base.theta * mass_exponents(d.base.names) / d.scenario.robot.mass_kg
+        d.cache["mass_per_kg"] = columns @ weights
+    return d.cache["mass_per_kg"]
 
 
 def _payload_effect(d: Design, resid, rows) -> Effect:
@@ -706,6 +713,8 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     speed = np.asarray(d.state.speed_mps)
     moving = (speed > 0.1) & rows
     others = np.delete(d.columns, drag_i, axis=1)[moving]
+    # the residual with the baseline's fit put back: what the wind's drag and the other
+    # columns share
     target = (resid + base_drag)[moving] + others @ np.delete(d.base.theta, drag_i)
 
     def drag_per_k(w):
@@ -713,18 +722,20 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
         (phi,) = aero_drag_feature(windy)
         return d.aligned(phi * speed)
 
-    def solve(w):
-        x = np.column_stack([drag_per_k(w)[moving], others])
-        theta = np.linalg.lstsq(x, target, rcond=None)[0]
-        return theta, x
+    def solve(drag_moving):
+        x = np.column_stack([drag_moving, others])
+        return np.linalg.lstsq(x, target, rcond=None)[0], x
 
     def fun(w):
-        theta, x = solve(w)
+        theta, x = solve(drag_per_k(w)[moving])
         return x @ theta - target
 
     assumed = np.array([np.mean(d.state.wind_x_mps), np.mean(d.state.wind_y_mps)], float)
+    # unit steps in m/s on both axes (MINPACK's fixed scaling; its default rescales by the
+    # Jacobian's columns as it goes)
     sol = least_squares(fun, assumed, method="lm", x_scale=np.array([1.0, 1.0]))
-    theta, x = solve(sol.x)
+    per_k = drag_per_k(sol.x)
+    theta, x = solve(per_k[moving])
     k = float(theta[0])
     # the joint Jacobian (w, k, the other coefficients) at the solution gives w's covariance
     # with everything it trades against
@@ -750,7 +761,7 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
              "wind_speed_mps": (float(speed_mps), float(np.sqrt(g_speed @ cov @ g_speed))),
              "wind_from_deg": (float(from_deg), float(np.sqrt(g_dir @ cov @ g_dir))),
              "drag_kg_per_m": (k, float(np.sqrt(full_cov[2, 2])))}
-    col = (k * drag_per_k(sol.x) - base_drag)[:, None]
+    col = (k * per_k - base_drag)[:, None]
     # the column enters at its own size (a share held at 1; a free share would let a fluke
     # scale a small wind into a large effect)
     return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra)
@@ -842,7 +853,7 @@ def _needs_wind(d: Design):
     # else (a slope met in one direction), which is no evidence of a wind
     i = d.base.names.index("drag_kg_per_m")
     drag_W = d.columns[:, i] * d.prior_mean[i]
-    if np.mean(np.abs(drag_W)) < MIN_DRAG_SHARE * np.mean(np.abs(d.y)):
+    if np.mean(np.abs(drag_W)) < MIN_DRAG_SHARE * d.mean_power_W:
         return "drag is negligible at these speeds: a wind could not show"
     if not {"x_m", "y_m"} <= d.columns_of:
         return "no positions: the heading relative to a wind is unknown"
@@ -956,13 +967,13 @@ def select(d: Design, pool: list[Candidate]) -> Selection:
     fits = [fit_design(d, [])]
     trials: list[Trial] = []
     open_pool = [c for c in pool if c.applies(d) is None]
-    mean_power = float(np.mean(np.abs(d.y)))
+    mean_power = d.mean_power_W
     while open_pool:
         current = fits[-1]
         scored = []
         for cand in open_pool:
             fit = fit_design(d, [*chosen, cand])
-            scored.append(([cand], fit, _judge([cand], fit, current, mean_power)))
+            scored.append(([cand], fit, judge([cand], fit, current, mean_power)))
         scored.sort(key=lambda s: -s[2].gain)
         trials += [s[2] for s in scored]
         best = next((s for s in scored if s[2].accepted), None)
@@ -996,7 +1007,7 @@ def _confirm(d: Design, chosen: list[Candidate], fit: Fit, mean_power_W: float):
         rest = [c for c in kept if c is not cand]
         d2, others, _, _ = _absorb(d, rest, _fit_of(d, rest))
         without = fit_design(d2, others)
-        if not _judge([cand], fit_design(d2, [*others, cand]), without, mean_power_W).accepted:
+        if not judge([cand], fit_design(d2, [*others, cand]), without, mean_power_W).accepted:
             kept = rest
     return (kept, fit) if len(kept) == len(chosen) else (kept, _fit_of(d, kept))
 
@@ -1031,7 +1042,7 @@ def _pair_trials(d: Design, chosen, scored, current: Fit, mean_power_W: float) -
             if _same_spec(a, b):
                 continue
             fit = fit_design(d, [*chosen, a, b])
-            out.append(([a, b], fit, _judge([a, b], fit, current, mean_power_W)))
+            out.append(([a, b], fit, judge([a, b], fit, current, mean_power_W)))
     return sorted(out, key=lambda s: -s[2].gain)
 
 
@@ -1039,7 +1050,7 @@ def _same_spec(a: Candidate, b: Candidate) -> bool:
     return a.spec_id == b.spec_id and a.id != "surface_rolling" and b.id != "surface_rolling"
 
 
-def _judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) -> Trial:
+def judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) -> Trial:
     """Judge the candidates ``new`` added to ``current`` together (``fit``): the held-out
     gain, fold agreement and BIC of the whole addition; each one's power share and t."""
     gain = 1.0 - fit.cv_rmse_W / current.cv_rmse_W if current.cv_rmse_W > 0 else 0.0
@@ -1047,7 +1058,7 @@ def _judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) ->
     ident = "+".join(c.id for c in new)
     checks = []  # (id, power share, t, t needed)
     for cand in new:
-        t_max, need_t, refusal = significance(cand, fit, current, n_eff)
+        t_max, need_t, refusal = _significance(cand, fit, current, n_eff)
         if refusal:
             return Trial(ident, float(gain), t_max, 0.0, False, refusal, 0)
         checks.append((cand.id, fit.effect_rms_W(cand.id) / max(mean_power_W, 1e-12),
@@ -1074,7 +1085,7 @@ def _judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) ->
     return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds)
 
 
-def significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
+def _significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
     """(largest |t| of the candidate's coefficients in ``fit``, the t it needs, a refusal or
     ""); ``current`` is the fit without it, ``n_eff`` the effective sample count."""
     need_t = MIN_T + (np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0)))) if cand.id in SCANNED
@@ -1448,7 +1459,7 @@ def _evidence(d: Design, cand: Candidate, values, label, baseline: Fit, without:
 def _null_evidence(d: Design, baseline: Fit, trials: list[Trial]) -> str:
     best = max(trials, key=lambda t: t.gain, default=None)
     base = (f"the refitted model leaves a residual of {baseline.rmse_W:.3g} W RMS "
-            f"({100 * baseline.rmse_W / max(np.mean(np.abs(d.y)), 1e-9):.1f} % of the mean "
+            f"({100 * baseline.rmse_W / max(d.mean_power_W, 1e-9):.1f} % of the mean "
             f"power), autocorrelation time {baseline.tau:.0f} samples")
     if best is None:
         return base + "; no candidate applies to this recording"

@@ -59,7 +59,7 @@ def locate(d, resid: np.ndarray, max_windows: int = 8) -> list[Mismatch]:
     for hi in breaks:
         seg = means[lo:hi]
         se = np.sqrt(s2 * tau / seg.size)
-        if abs(seg.mean()) > 3.0 * se and abs(seg.mean()) > 0.02 * np.mean(np.abs(d.y)):
+        if abs(seg.mean()) > 3.0 * se and abs(seg.mean()) > 0.02 * d.mean_power_W:
             t0, t1 = float(edges[lo]), float(edges[hi])
             inside = (d.t_s >= t0) & (d.t_s < t1)
             out.append(Mismatch(t0, t1, float(np.mean(resid[inside])), describe(d, inside)))

@@ -455,6 +455,13 @@ MAX_ROUTE_TRIES = 200_000
 """Candidate draws before a route search gives up (a 30-min run needs a few hundred)."""
 
 
+def _style_surface(style: str) -> str | None:
+    """The surface a ``"surface:<name>[+hills]"`` route style is about (None for the others)."""
+    if not style.startswith("surface:"):
+        return None
+    return style.removeprefix("surface:").removesuffix("+hills")
+
+
 def _pool_ok(world, style: str, surface: str | None):
     """Predicate on candidate points (x, y) arrays for the style's pool."""
     if style == "hills":
@@ -472,8 +479,8 @@ def _pool_ok(world, style: str, surface: str | None):
 def _route(rng, world, style: str, length_m: float, v_range_mps: tuple[float, float]) -> Route:
     """A random collision-free route of at least ``length_m`` (see ``STYLES``; a
     ``"surface:<name>+hills"`` route takes its non-surface waypoints from the hills)."""
-    style, plus_hills = style.removesuffix("+hills"), style.endswith("+hills")
-    surface = style.split(":", 1)[1] if style.startswith("surface:") else None
+    surface, plus_hills = _style_surface(style), style.endswith("+hills")
+    style = style.removesuffix("+hills")
     (l_lo, l_hi), (t_lo, t_hi), p_pool = STYLES["surface" if surface else style]
     pools = [_pool_ok(world, style, surface)]
     if plus_hills:
@@ -705,12 +712,12 @@ SURFACE_TRIES = 50
 
 def _surface_share_ok(ctx: Context, style: str, frame: pd.DataFrame) -> bool:
     """True unless ``style`` is a surface route whose drive is outside ``SURFACE_SHARE``."""
-    if not style.startswith("surface:"):
+    surface = _style_surface(style)
+    if surface is None:
         return True
-    surface = style.removeprefix("surface:").removesuffix("+hills")
-    code = ctx.world.map.surface_names.index(surface)
-    on = ctx.world.surface_code_at(frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float))
-    return SURFACE_SHARE[0] <= float(np.mean(on == code)) <= SURFACE_SHARE[1]
+    on = _pool_ok(ctx.world, style, surface)(frame["x_m"].to_numpy(float),
+                                             frame["y_m"].to_numpy(float))
+    return SURFACE_SHARE[0] <= float(np.mean(on)) <= SURFACE_SHARE[1]
 
 
 def _with_landed_ends(frame: pd.DataFrame, ctx: Context, landed_s, dt: float):
