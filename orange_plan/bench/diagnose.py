@@ -127,8 +127,7 @@ def oracle(result, truth: dict) -> list[dict]:
     for cand in told:
         # diagnosis's own judgement of the term added last; its t against MIN_T (a true
         # change time needs no scan's raised bar)
-        trial = judge([cand], full, fit_design(d, [c for c in told if c is not cand]),
-                      d.mean_power_W)
+        trial = judge(d, [cand], full, fit_design(d, [c for c in told if c is not cand]))
         out.append({"term": spec_id(cand.id), "t": trial.t_max, "gain_pct": 100.0 * trial.gain,
                     "detectable": bool(trial.t_max >= MIN_T and trial.gain >= MIN_GAIN)})
     return out

@@ -967,18 +967,17 @@ def select(d: Design, pool: list[Candidate]) -> Selection:
     fits = [fit_design(d, [])]
     trials: list[Trial] = []
     open_pool = [c for c in pool if c.applies(d) is None]
-    mean_power = d.mean_power_W
     while open_pool:
         current = fits[-1]
         scored = []
         for cand in open_pool:
             fit = fit_design(d, [*chosen, cand])
-            scored.append(([cand], fit, judge([cand], fit, current, mean_power)))
+            scored.append(([cand], fit, judge(d, [cand], fit, current)))
         scored.sort(key=lambda s: -s[2].gain)
         trials += [s[2] for s in scored]
         best = next((s for s in scored if s[2].accepted), None)
         if best is None:
-            pairs = _pair_trials(d, chosen, scored, current, mean_power)
+            pairs = _pair_trials(d, chosen, scored, current)
             trials += [s[2] for s in pairs]
             best = next((s for s in pairs if s[2].accepted), None)
         if best is None:
@@ -990,11 +989,11 @@ def select(d: Design, pool: list[Candidate]) -> Selection:
     # (replacing a chosen term by a rival that does better in its place, sequential
     # replacement, changed nothing on 230 generated cases: it is not done)
     chosen, fit = _backward(d, chosen, fits[-1])
-    chosen, fit = _confirm(d, chosen, fit, mean_power)
+    chosen, fit = _confirm(d, chosen, fit)
     return Selection(chosen, fits[0], fit, trials)
 
 
-def _confirm(d: Design, chosen: list[Candidate], fit: Fit, mean_power_W: float):
+def _confirm(d: Design, chosen: list[Candidate], fit: Fit):
     """Judge each chosen candidate again, added last to the *others inside the model*
     (``_absorb``): later rounds judged candidates against the earlier finds' columns built
     at the baseline's clip, and what that linearisation misses (regen's braking samples)
@@ -1007,7 +1006,7 @@ def _confirm(d: Design, chosen: list[Candidate], fit: Fit, mean_power_W: float):
         rest = [c for c in kept if c is not cand]
         d2, others, _, _ = _absorb(d, rest, _fit_of(d, rest))
         without = fit_design(d2, others)
-        if not judge([cand], fit_design(d2, [*others, cand]), without, mean_power_W).accepted:
+        if not judge(d, [cand], fit_design(d2, [*others, cand]), without).accepted:
             kept = rest
     return (kept, fit) if len(kept) == len(chosen) else (kept, _fit_of(d, kept))
 
@@ -1028,7 +1027,7 @@ def _rivals(cand: Candidate, chosen, trials, pool) -> list[Candidate]:
     return out
 
 
-def _pair_trials(d: Design, chosen, scored, current: Fit, mean_power_W: float) -> list:
+def _pair_trials(d: Design, chosen, scored, current: Fit) -> list:
     """Every pair of the single candidates, each fitted together and judged as a whole: two
     effects can mask each other (a surface's rolling fitted alone takes up part of an
     in-battery loss and makes the folds without that surface worse), so that neither passes
@@ -1042,7 +1041,7 @@ def _pair_trials(d: Design, chosen, scored, current: Fit, mean_power_W: float) -
             if _same_spec(a, b):
                 continue
             fit = fit_design(d, [*chosen, a, b])
-            out.append(([a, b], fit, judge([a, b], fit, current, mean_power_W)))
+            out.append(([a, b], fit, judge(d, [a, b], fit, current)))
     return sorted(out, key=lambda s: -s[2].gain)
 
 
@@ -1050,9 +1049,10 @@ def _same_spec(a: Candidate, b: Candidate) -> bool:
     return a.spec_id == b.spec_id and a.id != "surface_rolling" and b.id != "surface_rolling"
 
 
-def judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) -> Trial:
+def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
     """Judge the candidates ``new`` added to ``current`` together (``fit``): the held-out
-    gain, fold agreement and BIC of the whole addition; each one's power share and t."""
+    gain, fold agreement and BIC of the whole addition; each one's power share (of the
+    design ``d``'s mean |power|) and t."""
     gain = 1.0 - fit.cv_rmse_W / current.cv_rmse_W if current.cv_rmse_W > 0 else 0.0
     n_eff = fit.predicted_W.size / current.tau
     ident = "+".join(c.id for c in new)
@@ -1061,7 +1061,7 @@ def judge(new: list[Candidate], fit: Fit, current: Fit, mean_power_W: float) -> 
         t_max, need_t, refusal = _significance(cand, fit, current, n_eff)
         if refusal:
             return Trial(ident, float(gain), t_max, 0.0, False, refusal, 0)
-        checks.append((cand.id, fit.effect_rms_W(cand.id) / max(mean_power_W, 1e-12),
+        checks.append((cand.id, fit.effect_rms_W(cand.id) / max(d.mean_power_W, 1e-12),
                        t_max, need_t))
     small = next((c for c in checks if c[1] < MIN_EFFECT_SHARE), None)
     weak = next((c for c in checks if c[2] < c[3]), None)
