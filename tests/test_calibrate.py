@@ -9,6 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import write_scenario
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
@@ -334,3 +336,24 @@ def test_real_bmw_trips_calibrate_physically():
     fitted = abs(whole_run_energy_J(cal.model_, rec, ctx, settings) / rec.energy_J - 1)
     prior = abs(whole_run_energy_J(ctx.model, rec, ctx, settings) / rec.energy_J - 1)
     assert prior > 0.15 and fitted < 0.08
+
+
+@settings(max_examples=40, deadline=None, database=None, derandomize=True)
+@given(seed=st.integers(0, 10_000), phi=st.floats(0.0, 0.9999), scale=st.floats(1e-3, 1e4),
+       shift=st.floats(-1e3, 1e3), n=st.integers(50, 9000))
+def test_autoregressive_inflation_is_a_finite_time_of_at_least_one_sample(seed, phi, scale,
+                                                                          shift, n):
+    """Whatever the residuals (white to nearly a random walk, any level and unit, short runs
+    that fall back to batch means), the inflation is a finite autocorrelation time of at
+    least one sample, and it is a property of the residuals' shape: the same in W as in kW,
+    and with a constant offset added (the estimator centres on the pooled mean)."""
+    rng = np.random.default_rng(seed)
+    e = rng.normal(size=n)
+    r = np.zeros(n)
+    for i in range(1, n):
+        r[i] = phi * r[i - 1] + e[i]
+    samples = _series_samples([n])
+    tau = autoregressive_inflation(r, samples, 30.0)
+    assert np.isfinite(tau) and tau >= 1.0
+    assert autoregressive_inflation(scale * r + shift, samples, 30.0) == pytest.approx(
+        tau, rel=1e-6)
