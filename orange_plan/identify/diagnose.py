@@ -41,7 +41,9 @@ mask each other, so that neither passes alone. A backward pass then drops any ch
 the others make redundant, and each chosen term is judged once more, added last to the
 others with those inside the model (``_confirm``: a found force term moves the clip that
 its linear column was built at). Non-linear parameters (the time a payload changes, a wind vector)
-are estimated inside each fold on its training blocks only.
+are estimated inside each fold on its training blocks only. A found term is reported with the
+rivals the recording cannot tell from it (``_alternatives``): one as good held out in its
+place, or one that passes in its place while, side by side, neither passes added last.
 
 Before any of this, the power's delay behind the motion is estimated against the baseline's
 columns *and every candidate's* (``power_lag_s``): a missing term's transients (an
@@ -1402,7 +1404,7 @@ def _alternatives(d: Design, cand: Candidate, chosen, fit: Fit, trials, pool) ->
       fitted side by side neither passes added last to the other. A cold battery's loss and
       a payload dropped as the cells warm both fall with time: on development payload seed 9
       the loss was 3 % better held out, the payload passed alone at t = 13, and beside the
-      loss its t fell to 2.7 (the loss's to 3.5).
+      loss (told its true change time) its t fell to 2.7, the loss's to 3.5.
 
     Each entry gives the held-out RMSE with the rival in ``cand``'s place and with ``cand``
     (both before the final Gauss-Newton polish)."""
