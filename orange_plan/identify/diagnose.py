@@ -121,6 +121,9 @@ scan's t statistics is itself large, so their t must exceed MIN_T by the scan's 
 maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
 that maximum grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff)
 of independent tests: on the null cases the scan's largest t was 1.7-3.2."""
+AS_GOOD_HELD_OUT = "as good held out"
+MASK_EACH_OTHER = "each masks the other"
+"""The ``why`` of an ``alternatives`` entry (``_alternatives``)."""
 RIVALS = 4
 """Single candidates (the best by held-out gain) checked as alternatives to a found term
 [-]."""
@@ -680,9 +683,9 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     # it) fits the training rows alike; the first of them, argmax's pick, put the step at the
     # start of the gap, and the held-out fold paid for the whole gap's worth of a wrong mass
     # (payload seed 301: -0.4 % held out for +31 % told the true time). The middle of the tie
-    # is as far as the data allow from both ends
-    ties = np.flatnonzero(gain == gain.max())
-    k = int(ties[ties.size // 2])
+    # is as far as the data allow from both ends (no valid time at all: argmax's 0, as before)
+    ties = np.flatnonzero(valid & (gain == gain.max()))
+    k = int(ties[ties.size // 2]) if ties.size else int(np.argmax(gain))
     t0 = float(d.t_s[k])
     # the change time's uncertainty: half the span of times whose fit is within one unit of
     # chi-square (noise variance x autocorrelation time) of the best, from the profile of the
@@ -1389,7 +1392,7 @@ def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit,
 def _alternative_sentence(alt: dict) -> str:
     """What an ``_alternatives`` entry says, with the held-out RMSEs it was measured at."""
     rmse = f"{alt['holdout_rmse_W']:.3g} W against {alt['chosen_holdout_rmse_W']:.3g} W"
-    if alt["why"] == "as good held out":
+    if alt["why"] == AS_GOOD_HELD_OUT:
         return f"{alt['term']} in its place predicts the held-out blocks about as well ({rmse})"
     return (f"{alt['term']} in its place passes too ({rmse} held out), and beside it neither "
             "adds anything the other does not explain")
@@ -1413,9 +1416,9 @@ def _alternatives(d: Design, cand: Candidate, chosen, fit: Fit, trials, pool) ->
     for other in _rivals(cand, chosen, trials, pool):
         swapped = fit_design(d, [other if c is cand else c for c in chosen])
         if swapped.cv_rmse_W <= fit.cv_rmse_W * (1.0 + MIN_GAIN):
-            why = "as good held out"
+            why = AS_GOOD_HELD_OUT
         elif _mask_each_other(d, cand, other, rest, fit, swapped):
-            why = "each masks the other"
+            why = MASK_EACH_OTHER
         else:
             continue
         out.append({"term": other.spec_id, "why": why,
