@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import pytest
 
-from orange_plan.bench.diagnose import oracle
+from orange_plan.bench.diagnose import oracle, with_stated_limits
 from orange_plan.identify.diagnose import MIN_T, diagnose
 from orange_plan.physics.terms import spec_id
 from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
@@ -228,8 +228,10 @@ def test_the_oracle_tells_a_term_in_the_recording_from_one_that_is_not(results):
     must call a concealed term detectable and a term that was never added undetectable."""
     for name in ("turning", "payload"):
         case, result = results(name)
-        (told,) = oracle(result, case.truth)
+        (told,) = with_stated_limits(oracle(result, case.truth), result)
         assert told["detectable"] and told["t"] > MIN_T, (name, told)
+        # found, so larger than the detection limit diagnosis stated for it
+        assert told["effect_W"] > told["stated_limit_W"] > 0, (name, told)
     case, result = results("null-ground")
     (absent,) = oracle(result, {"battery_resistance": {"battery_loss_per_W": 1e-3}})
     assert not absent["detectable"], absent

@@ -22,6 +22,11 @@ others. A term whose oracle t is under ``MIN_T``, or whose oracle held-out gain 
 ``MIN_GAIN``, could not have been named at diagnosis's significance by any choice of terms:
 the noise of that recording hides it. The summary counts misses among the detectable terms
 apart, so that a selection failure and an effect the data do not carry are told apart.
+
+Each oracle entry also sets the term's true size (its RMS power in that fit, ``effect_W``)
+against the detection limit diagnosis itself stated for it (``stated_limit_W``, no truth
+used): the summary counts the misses that were under it, i.e. ones the user was told a
+recording like this could hide.
 """
 
 from __future__ import annotations
@@ -102,12 +107,26 @@ def compare(case) -> CaseRow:
         baseline_holdout_rmse_W=result.baseline.cv_rmse_W,
         ours_holdout_rmse_W=result.improved.cv_rmse_W, lasso_holdout_rmse_W=lasso_rmse,
         ours_seconds=ours_s, lasso_seconds=lasso_s,
-        params=recovered_params(result, case.truth), oracle=oracle(result, case.truth))
+        params=recovered_params(result, case.truth),
+        oracle=with_stated_limits(oracle(result, case.truth), result))
+
+
+def with_stated_limits(told: list[dict], result) -> list[dict]:
+    """Each oracle entry with ``stated_limit_W``: the detection limit diagnosis itself stated
+    for that term (``Trial.detectable_W``: its smallest over the term's candidates in the
+    last round each was tried), to set against the term's true size ``effect_W``: a miss
+    under the stated limit is one the user was told could happen."""
+    last = {t.id: t.detectable_W for t in result.trials if "+" not in t.id}
+    stated: dict[str, float] = {}
+    for cand_id, limit in last.items():
+        sid = spec_id(cand_id)
+        stated[sid] = min(limit, stated.get(sid, float("inf")))
+    return [{**o, "stated_limit_W": stated.get(o["term"], float("nan"))} for o in told]
 
 
 def oracle(result, truth: dict) -> list[dict]:
-    """Each concealed term's t and held-out gain when diagnosis is told the true terms
-    (module docstring): ``{"term", "t", "gain_pct", "detectable"}``."""
+    """Each concealed term's t, held-out gain and RMS power [W] when diagnosis is told the
+    true terms (module docstring): ``{"term", "t", "gain_pct", "effect_W", "detectable"}``."""
     d = replace(result.design, cache={})  # the scanned payload's effects are cached by id
     pool = {c.id: c for c in candidates()}
     told, out = [], []
@@ -115,7 +134,7 @@ def oracle(result, truth: dict) -> list[dict]:
         cand = pool[ORACLE_CANDIDATE.get(term, term)]
         if cand.applies(d) is not None:  # e.g. a surface the run never reached
             out.append({"term": spec_id(cand.id), "t": 0.0, "gain_pct": 0.0,
-                        "detectable": False})
+                        "effect_W": 0.0, "detectable": False})
             continue
         if term == "payload":
             t0 = params["payload_from_s"]
@@ -129,6 +148,7 @@ def oracle(result, truth: dict) -> list[dict]:
         # change time needs no scan's raised bar)
         trial = judge(d, [cand], full, fit_design(d, [c for c in told if c is not cand]))
         out.append({"term": spec_id(cand.id), "t": trial.t_max, "gain_pct": 100.0 * trial.gain,
+                    "effect_W": full.effect_rms_W(cand.id),
                     "detectable": bool(trial.t_max >= MIN_T and trial.gain >= MIN_GAIN)})
     return out
 
@@ -206,7 +226,11 @@ def summarise(rows: list[CaseRow]) -> dict:
     params = [p for r in rows for p in r.params]
     told = [(r, o) for r in rows for o in r.oracle]
     detectable = [(r, o) for r, o in told if o["detectable"]]
+    missed = [(r, o) for r, o in told if o["term"] in r.ours_missed]
     return {"terms_detectable": len(detectable),
+            "misses": len(missed),
+            "misses_under_stated_limit": sum(o["effect_W"] < o["stated_limit_W"]
+                                             for _, o in missed),
             "detectable_found": sum(o["term"] not in r.ours_missed for r, o in detectable),
             "undetectable": [f"{r.case}: {o['term']} (t {o['t']:.1f}, held-out "
                              f"{o['gain_pct']:+.1f} %)" for r, o in told if not o["detectable"]],

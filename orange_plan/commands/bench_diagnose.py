@@ -85,7 +85,9 @@ def _summary_table(summary: dict) -> Table:
                      f"{100 * summary['params_median_rel_error']:.1f} %\n"
                      f"detectable when told the true terms: {summary['terms_detectable']}, "
                      f"of which diagnosis found {summary['detectable_found']}; "
-                     f"hidden by the noise: {hidden}")
+                     f"hidden by the noise: {hidden}\n"
+                     f"misses under the detection limit diagnosis stated for them: "
+                     f"{summary['misses_under_stated_limit']} of {summary['misses']}")
     return table
 
 

@@ -58,7 +58,10 @@ A candidate must predict blocks it never saw, by more than a share of the error,
 coefficients of the physical sign, significant under autocorrelation, and pay for its
 parameters in BIC: noise, an autocorrelated disturbance, or a column that carries nothing
 (a wrong sensor) fail at least one of these. A null result says so explicitly, with the best
-candidate's figures as evidence.
+candidate's figures as evidence and what the recording could not have shown: every trial
+carries its candidate's detection limit (``detection_limit_W``), the smallest RMS power of
+it that would have passed its t bar, so that "nothing found" is read as "nothing above
+these sizes", not as "nothing".
 
 A term whose coefficients are all 0 in the scenario counts as left out (a switched-off term,
 DESIGN.md), and can be found.
@@ -949,7 +952,10 @@ def candidate_columns(d: Design, pool: list[Candidate] | None = None):
 @dataclass(frozen=True)
 class Trial:
     """One candidate (or pair, ``"a+b"``) judged in one round: held-out RMSE gain, largest
-    |t| of its coefficients (a pair: the weaker member's), BIC change, folds no worse."""
+    |t| of its coefficients (a pair: the weaker member's), BIC change, folds no worse, and
+    its detection limit ``detectable_W``: the smallest RMS power [W] of this candidate that
+    would have passed its t bar and power share in this round (a pair: the larger member's;
+    ``detection_limit_W``)."""
 
     id: str
     gain: float
@@ -958,6 +964,7 @@ class Trial:
     accepted: bool
     reason: str
     folds: int = 0
+    detectable_W: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -1072,10 +1079,11 @@ def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
     n_eff = fit.predicted_W.size / tau
     ident = "+".join(c.id for c in new)
     checks = []  # (id, power share, t, t needed)
+    limit_W = max(detection_limit_W(d, cand, fit, current, n_eff) for cand in new)
     for cand in new:
         t_max, need_t, refusal = _significance(cand, fit, current, n_eff)
         if refusal:
-            return Trial(ident, float(gain), t_max, 0.0, False, refusal, 0)
+            return Trial(ident, float(gain), t_max, 0.0, False, refusal, 0, limit_W)
         checks.append((cand.id, fit.effect_rms_W(cand.id) / max(d.mean_power_W, 1e-12),
                        t_max, need_t))
     small = next((c for c in checks if c[1] < MIN_EFFECT_SHARE), None)
@@ -1097,14 +1105,47 @@ def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
               else f"{who(weak)}t = {weak[2]:.1f} (need {weak[3]:.1f})" if weak
               else f"BIC +{bic_change:.1f}" if bic_change >= 0 else "")
     t_max = min(c[2] for c in checks)
-    return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds)
+    return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds,
+                 limit_W)
+
+
+def _needed_t(cand: Candidate, n_eff: float) -> float:
+    """The t a candidate must reach: ``MIN_T``, and for a scanned change time the scan's
+    price, ``sqrt(2 ln ln n_eff)`` (the largest of n_eff correlated t's under no change)."""
+    return MIN_T + (np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0)))) if cand.id in SCANNED
+                    else 0.0)
+
+
+def detection_limit_W(d: Design, cand: Candidate, fit: Fit, current: Fit,
+                      n_eff: float) -> float:
+    """The smallest RMS power [W] the candidate could have added to the recording and still
+    passed its t bar and its power share (``MIN_EFFECT_SHARE``) in ``fit``.
+
+    A coefficient's t is ``|theta| / sd``, and its power's RMS is ``|theta| rms(x)``, so the
+    t bar is reached from ``need_t sd rms(x)`` on; a term is significant when its strongest
+    coefficient is, so the limit is the smallest over its coefficients. The wind is judged
+    by the likelihood ratio ``n_eff ln(s0^2 / s1^2)``: an effect of RMS ``a`` that the
+    model had not explained lowers ``s1^2`` to ``s0^2 - a^2``, so its limit is
+    ``s0 sqrt(1 - exp(-need_t^2 / n_eff))``. The held-out gain and the folds are not in it:
+    it says what the noise hides, not what the cross-validation would accept. An effect
+    below it could have been missed; one well above it (twice) would have passed the t bar.
+    """
+    need_t = _needed_t(cand, n_eff)
+    share_W = MIN_EFFECT_SHARE * d.mean_power_W
+    if cand.id == "wind":
+        s0 = current.rmse_W
+        return max(share_W, float(s0 * np.sqrt(-np.expm1(-need_t**2 / max(n_eff, 1.0)))))
+    own = [i for i in fit.owned(cand.id) if fit.sd[i] > 0]
+    if not own:
+        return float("inf")
+    rms = np.sqrt(np.mean(fit.x[:, own] ** 2, axis=0))
+    return max(share_W, float(np.min(need_t * fit.sd[own] * rms)))
 
 
 def _significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float):
     """(largest |t| of the candidate's coefficients in ``fit``, the t it needs, a refusal or
     ""); ``current`` is the fit without it, ``n_eff`` the effective sample count."""
-    need_t = MIN_T + (np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0)))) if cand.id in SCANNED
-                      else 0.0)
+    need_t = _needed_t(cand, n_eff)
     own = fit.owned(cand.id)
     t = np.abs(fit.theta[own]) / np.where(fit.sd[own] > 0, fit.sd[own], np.inf)
     # a term is significant when its strongest coefficient is: hvac's cooling or one surface
@@ -1512,7 +1553,21 @@ def _null_evidence(d: Design, baseline: Fit, trials: list[Trial]) -> str:
     if best is None:
         return base + "; no candidate applies to this recording"
     return (base + f"; the best candidate, {best.id}, would change the held-out RMSE by "
-            f"{-100 * best.gain:+.1f} % ({best.reason})")
+            f"{-100 * best.gain:+.1f} % ({best.reason})" + _limits_sentence(d, trials))
+
+
+def _limits_sentence(d: Design, trials: list[Trial]) -> str:
+    """What the recording could not have shown: the range of the single candidates'
+    detection limits, with the most and least sensitive named."""
+    limits = [t for t in trials if "+" not in t.id and np.isfinite(t.detectable_W)]
+    if not limits:
+        return ""
+    lo = min(limits, key=lambda t: t.detectable_W)
+    hi = max(limits, key=lambda t: t.detectable_W)
+    pct = 100.0 / max(d.mean_power_W, 1e-9)
+    return (f"; a missing effect smaller than its detection limit could go unseen: from "
+            f"{lo.detectable_W:.2g} W RMS ({pct * lo.detectable_W:.1f} % of the mean power, "
+            f"{lo.id}) to {hi.detectable_W:.2g} W ({pct * hi.detectable_W:.1f} %, {hi.id})")
 
 
 # --- the model with the findings ----------------------------------------------------------------

@@ -1,0 +1,127 @@
+"""The detection limit a diagnosis states for each candidate (``detection_limit_W``): the
+smallest RMS power of that candidate which would have passed its t bar in that round.
+
+Why it is stated this way: the limit is computed from one fit's standard errors; the
+independent reference is the same recording with the candidate's own effect added at ``k``
+times the stated limit, diagnosed again by refitting (``fit_design``) and judging
+(``judge``). Each limit's worth of added effect must add one t bar (``MIN_T``): at twice
+the limit it passes, at a third of it (where the noise gave the candidate little t) it
+does not. A limit that was too low would let a user read "no missing physics found" as
+ruling out effects the recording could in fact have hidden.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cache
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from orange_plan.identify.diagnose import (
+    MIN_EFFECT_SHARE,
+    MIN_T,
+    candidates,
+    detection_limit_W,
+    diagnose,
+    fit_design,
+    judge,
+)
+from orange_plan.sim.concealed import concealed_case
+
+LINEAR = ("drift", "battery_temperature", "turning", "inertia")
+"""Candidates of one coefficient whose column does not depend on the residual (a payload's
+change time and a wind are estimated from it, so an added step or wind moves them too)."""
+
+
+@cache
+def _null():
+    case = concealed_case([], 0, kind="ground")
+    return diagnose(case.recording, case.ctx)
+
+
+def _candidate(name: str):
+    return next(c for c in candidates() if c.id == name)
+
+
+def _judged(d, cand):
+    base, fit = fit_design(d, []), fit_design(d, [cand])
+    return fit, judge(d, [cand], fit, base)
+
+
+def _with_power(d, power_W):
+    """The design of the same recording with ``power_W`` [W] more recorded power."""
+    samples = dataclasses.replace(d.samples, power_W=d.samples.power_W + power_W)
+    return dataclasses.replace(d, samples=samples, cache={})
+
+
+def _unit(fit, i):
+    """Coefficient ``i``'s column scaled to 1 W RMS."""
+    return fit.x[:, i] / np.sqrt(np.mean(fit.x[:, i] ** 2))
+
+
+@settings(max_examples=8, deadline=None, database=None, derandomize=True)
+@given(name=st.sampled_from(LINEAR), k=st.floats(1.0, 3.0))
+def test_each_limits_worth_of_effect_adds_one_t_bar(name, k):
+    """``t(k + 1) - t(k) = MIN_T``: the difference cancels the noise's own share of the t,
+    which a coefficient held at its physical bound (0) would otherwise hide."""
+    d = _null().design
+    cand = _candidate(name)
+    fit, trial = _judged(d, cand)
+    unit = _unit(fit, fit.owned(name)[0])
+    t = [_judged(_with_power(d, j * trial.detectable_W * unit), cand)[1].t_max
+         for j in (k, k + 1.0)]
+    assert t[0] > 0.0  # off its bound, where t is linear in the effect
+    if trial.detectable_W <= MIN_EFFECT_SHARE * d.mean_power_W * (1 + 1e-9):
+        # the power share, not the t bar, set this limit: a limit's worth is more than a bar
+        assert t[1] - t[0] >= MIN_T * 0.98, t
+    else:
+        # exact when the null's own fit is off its bound (turning); held at 0, its residual
+        # differs from the injected fits' and so does its autocorrelation time (drift: 83.1
+        # against 82.4 samples, the t step 4.02)
+        assert t[1] - t[0] == pytest.approx(MIN_T, rel=0.02), t
+
+
+def test_twice_the_limit_passes_the_t_bar_a_third_does_not():
+    d = _null().design
+    cand = _candidate("drift")
+    fit, trial = _judged(d, cand)
+    unit = _unit(fit, fit.owned("drift")[0])
+    t = {k: _judged(_with_power(d, k * trial.detectable_W * unit), cand)[1].t_max
+         for k in (2.0, 1.0 / 3.0)}
+    assert t[2.0] >= MIN_T > t[1.0 / 3.0], t
+
+
+def test_the_limits_are_in_the_json_and_the_null_evidence():
+    result = _null()
+    assert result.verdict == "no missing physics found"
+    singles = [c for c in result.to_dict()["candidates"] if "+" not in c["id"]]
+    assert singles and all(c["detectable_W"] > 0 for c in singles)
+    assert "detection limit" in result.evidence
+
+
+def test_a_candidate_the_fit_cannot_move_has_no_limit():
+    """No free coefficient (every standard error 0): no effect of it is detectable, the
+    limit is infinite (null in the JSON)."""
+    d = _null().design
+    cand = _candidate("drift")
+    fit = fit_design(d, [cand])
+    pinned = dataclasses.replace(fit, sd=np.zeros_like(fit.sd))
+    assert detection_limit_W(d, cand, pinned, fit, 100.0) == np.inf
+
+
+def test_the_winds_limit_by_hand():
+    """The wind is judged by the likelihood ratio: residual 2 W RMS, 100 effective samples,
+    bar 4: an unexplained effect of RMS a is seen from ``100 ln(4 / (4 - a^2)) = 16`` on,
+    a = 2 sqrt(1 - exp(-0.16)) = 0.76904 W; the power share floor (1 % of 10 W) is below."""
+    from types import SimpleNamespace
+
+    wind = _candidate("wind")
+    d = SimpleNamespace(mean_power_W=10.0)
+    current = SimpleNamespace(rmse_W=2.0)
+    assert detection_limit_W(d, wind, None, current, 100.0) == pytest.approx(0.7690415, rel=1e-6)
+    # a large share floor wins
+    assert detection_limit_W(SimpleNamespace(mean_power_W=1e3), wind, None, current,
+                             100.0) == pytest.approx(10.0)
