@@ -1564,10 +1564,13 @@ def _limits_sentence(d: Design, trials: list[Trial]) -> str:
         return ""
     lo = min(limits, key=lambda t: t.detectable_W)
     hi = max(limits, key=lambda t: t.detectable_W)
-    pct = 100.0 / max(d.mean_power_W, 1e-9)
+    def share(t: Trial) -> str:
+        pct = 100.0 * t.detectable_W / max(d.mean_power_W, 1e-9)
+        return f"{pct:.1f} %" if pct < 100 else f"{pct:.0f} %"
+
     return (f"; a missing effect smaller than its detection limit could go unseen: from "
-            f"{lo.detectable_W:.2g} W RMS ({pct * lo.detectable_W:.1f} % of the mean power, "
-            f"{lo.id}) to {hi.detectable_W:.2g} W ({pct * hi.detectable_W:.1f} %, {hi.id})")
+            f"{lo.detectable_W:.2g} W RMS ({share(lo)} of the mean power, {lo.id}) to "
+            f"{hi.detectable_W:.2g} W ({share(hi)}, {hi.id})")
 
 
 # --- the model with the findings ----------------------------------------------------------------
