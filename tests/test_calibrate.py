@@ -11,6 +11,7 @@ import pytest
 from conftest import write_scenario
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.signal import lfilter
 
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
@@ -211,13 +212,16 @@ def _series_samples(sizes, dt_s=0.1) -> Samples:
     return Samples(None, np.zeros(total), np.full(total, dt_s), block, np.zeros(total, bool))
 
 
+def _ar1(rng, n, phi, sd=1.0, stationary=True):
+    """An AR(1) series of innovation sd ``sd``, started in its stationary distribution (or
+    at 0, which a random walk needs)."""
+    e = rng.normal(scale=sd, size=n)
+    e[0] = e[0] / np.sqrt(1 - phi**2) if stationary else 0.0
+    return lfilter([1.0], [1.0, -phi], e)
+
+
 def _ar1_plus_white(rng, n, phi=0.99, sd_ar=1.0, sd_white=4.0):
-    e = rng.normal(scale=sd_ar, size=n)
-    ar = np.zeros(n)
-    ar[0] = e[0] / np.sqrt(1 - phi**2)
-    for i in range(1, n):
-        ar[i] = phi * ar[i - 1] + e[i]
-    return ar + rng.normal(scale=sd_white, size=n)
+    return _ar1(rng, n, phi, sd_ar) + rng.normal(scale=sd_white, size=n)
 
 
 # AR(1) (phi 0.99, innovation sd 1) plus white noise (sd 4), in samples: long-run variance
@@ -271,7 +275,6 @@ def test_autoregressive_inflation_pools_recordings_and_falls_back_on_short_runs(
     r = _ar1_plus_white(rng, 2000)
     assert autoregressive_inflation(r, short, 30.0) == inflation_factor(r, short, 30.0)
     assert autoregressive_inflation(np.zeros(2000), short, 30.0) == 1.0
-
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
@@ -347,11 +350,7 @@ def test_autoregressive_inflation_is_a_finite_time_of_at_least_one_sample(seed, 
     that fall back to batch means), the inflation is a finite autocorrelation time of at
     least one sample, and it is a property of the residuals' shape: the same in W as in kW,
     and with a constant offset added (the estimator centres on the pooled mean)."""
-    rng = np.random.default_rng(seed)
-    e = rng.normal(size=n)
-    r = np.zeros(n)
-    for i in range(1, n):
-        r[i] = phi * r[i - 1] + e[i]
+    r = _ar1(np.random.default_rng(seed), n, phi, stationary=False)
     samples = _series_samples([n])
     tau = autoregressive_inflation(r, samples, 30.0)
     assert np.isfinite(tau) and tau >= 1.0

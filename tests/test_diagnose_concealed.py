@@ -18,7 +18,7 @@ from __future__ import annotations
 import pytest
 
 from orange_plan.bench.diagnose import oracle, with_stated_limits
-from orange_plan.identify.diagnose import MIN_T, diagnose
+from orange_plan.identify.diagnose import AS_GOOD_HELD_OUT, MASK_EACH_OTHER, MIN_T, diagnose
 from orange_plan.physics.terms import spec_id
 from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
 
@@ -147,7 +147,7 @@ def test_a_term_the_recording_cannot_tell_apart_is_offered_as_an_alternative():
     pool = {c.id: c for c in candidates()}
     for finding in result.findings:
         for alt in finding.alternatives:
-            if alt["why"] != "as good held out":
+            if alt["why"] != AS_GOOD_HELD_OUT:
                 continue
             chosen = [pool[alt.get("variant", alt["term"])] if c.spec_id == finding.term else c
                       for c in result.chosen]
@@ -170,7 +170,7 @@ def test_two_terms_that_mask_each_other_are_offered_as_alternatives():
     result = diagnose(case.recording, case.ctx)
     (finding,) = result.findings
     (alt,) = [a for a in finding.alternatives if a["term"] == "payload"]
-    assert alt["why"] == "each masks the other"
+    assert alt["why"] == MASK_EACH_OTHER
     pool = {c.id: c for c in candidates()}
     d, named, payload = result.design, pool[finding.variant or finding.term], pool["payload"]
     alone, instead = fit_design(d, [named]), fit_design(d, [payload])

@@ -963,8 +963,8 @@ class Trial:
     bic_change: float
     accepted: bool
     reason: str
-    folds: int = 0
-    detectable_W: float = float("nan")
+    folds: int
+    detectable_W: float
 
 
 @dataclass(frozen=True)
@@ -1564,13 +1564,16 @@ def _limits_sentence(d: Design, trials: list[Trial]) -> str:
         return ""
     lo = min(limits, key=lambda t: t.detectable_W)
     hi = max(limits, key=lambda t: t.detectable_W)
-    def share(t: Trial) -> str:
-        pct = 100.0 * t.detectable_W / max(d.mean_power_W, 1e-9)
-        return f"{pct:.1f} %" if pct < 100 else f"{pct:.0f} %"
-
     return (f"; a missing effect smaller than its detection limit could go unseen: from "
-            f"{lo.detectable_W:.2g} W RMS ({share(lo)} of the mean power, {lo.id}) to "
-            f"{hi.detectable_W:.2g} W ({share(hi)}, {hi.id})")
+            f"{lo.detectable_W:.2g} W RMS ({_share_of_mean(d, lo.detectable_W)} of the mean "
+            f"power, {lo.id}) to {hi.detectable_W:.2g} W "
+            f"({_share_of_mean(d, hi.detectable_W)}, {hi.id})")
+
+
+def _share_of_mean(d: Design, power_W: float) -> str:
+    """``power_W`` as a percentage of the mean |power|, whole above 100 %."""
+    pct = 100.0 * power_W / max(d.mean_power_W, 1e-9)
+    return f"{pct:.1f} %" if pct < 100 else f"{pct:.0f} %"
 
 
 # --- the model with the findings ----------------------------------------------------------------
