@@ -47,10 +47,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import lfilter
-from scipy.spatial import cKDTree
 
 from orange_plan.errors import InputError
-from orange_plan.planning.paths import clean_polyline
+from orange_plan.planning.homepaths import HomePaths
+from orange_plan.planning.paths import clean_polyline, cut_path
 
 RTL_TIME_FACTOR = 1.1
 """PX4 ``RTL_TIME_FACTOR`` default [-] (navigator/rtl_params.yaml)."""
@@ -125,85 +125,6 @@ class ReturnRule:
         if time_limit_s is not None:
             fire |= np.asarray(t_s, float) + safe >= time_limit_s
         return int(np.argmax(fire)) if fire.any() else None
-
-
-class HomePaths:
-    """Return paths home from any point: the roadmap's minimum-energy tree, joined straight.
-
-    A point joins the visible roadmap vertex (of its ``k`` nearest, and home) minimising
-    ``e_per_m |p - v| + E_home(v)``; the return path is ``p -> v -> ... -> home`` along the
-    to-home energy field, its length the sum of the tree's edges.
-    """
-
-    def __init__(self, reach, k: int = 10):
-        from orange_plan.planning.lawnmower import FreeSegments
-
-        self.segments_free = FreeSegments(reach.exact.world)
-        rm, field = reach.roadmap, reach.to_home
-        self.xy, self.home = rm.xy_m, rm.home_index
-        self.next, self.energy = field.next_vertex, field.energy_J
-        self.k = min(k, rm.n_vertices)
-        self.tree = cKDTree(self.xy)
-        self.speed_mps = float(reach.exact.speed_mps)
-        self.e_per_m = _flat_energy_per_m(reach.exact)
-        self.length_home = self._tree_lengths()
-
-    def _tree_lengths(self) -> np.ndarray:
-        length = np.full(len(self.xy), np.inf)
-        length[self.home] = 0.0
-        reached = np.flatnonzero(np.isfinite(self.energy))
-        for v in reached[np.argsort(self.energy[reached], kind="stable")]:
-            nxt = self.next[v]
-            if v != self.home and nxt >= 0:
-                length[v] = length[nxt] + float(np.hypot(*(self.xy[v] - self.xy[nxt])))
-        return length
-
-    def _join(self, points) -> tuple[np.ndarray, np.ndarray]:
-        """Chosen vertex and its join length for each point (vertex -1: none visible)."""
-        pts = np.atleast_2d(np.asarray(points, float))
-        n = len(pts)
-        _, near = self.tree.query(pts, k=self.k)
-        cand = np.c_[near.reshape(n, self.k), np.full(n, self.home)]
-        a = np.repeat(pts, cand.shape[1], axis=0)
-        b = self.xy[cand.ravel()]
-        d = np.hypot(*(b - a).T).reshape(cand.shape)
-        ok = self.segments_free(a, b).reshape(cand.shape) | (d < 1e-9)
-        score = np.where(ok, self.e_per_m * d + self.energy[cand], np.inf)
-        best = np.argmin(score, axis=1)
-        rows = np.arange(n)
-        v = np.where(np.isfinite(score[rows, best]), cand[rows, best], -1)
-        return v, d[rows, best]
-
-    def length_m(self, points) -> np.ndarray:
-        """Length of the return path from each point [m] (inf where none is found)."""
-        v, d = self._join(points)
-        return np.where(v >= 0, d + self.length_home[np.maximum(v, 0)], np.inf)
-
-    def time_s(self, points) -> np.ndarray:
-        """Return path length over the cruise speed [s] (PX4's ``time_estimate``)."""
-        return self.length_m(points) / self.speed_mps
-
-    def path(self, point) -> np.ndarray:
-        """Vertices of the return path from ``point`` to home [m]."""
-        p = np.asarray(point, float).reshape(2)
-        v, _ = self._join(p[None])
-        v = int(v[0])
-        if v < 0:
-            from orange_plan.errors import PlanningError
-
-            raise PlanningError(f"no return path home from ({p[0]:g}, {p[1]:g})")
-        seq = [v]
-        while seq[-1] != self.home:
-            seq.append(int(self.next[seq[-1]]))
-        return clean_polyline(np.vstack([p, self.xy[seq]]))
-
-
-def _flat_energy_per_m(cost) -> float:
-    """Energy per metre at the cruise speed on flat default ground [J/m] (joins' weight)."""
-    from orange_plan.physics.range import flat_energy_per_m_J
-
-    return float(flat_energy_per_m_J(cost.model, cost.speed_mps, cost.world.default_crr,
-                                     cost.conditions.sensor_rate_Hz, cost.conditions.duty_cycle))
 
 
 def cruise_power_W(ctx, speed_mps: float) -> float:
@@ -286,18 +207,6 @@ def locate_on_path(xy, point, s_hint_m: float, window: float = 0.1) -> float:
     dist = np.hypot(*(a[j] + u[:, None] * d - p).T)
     m = int(np.argmin(dist))
     return float(s0[j[m]] + u[m] * seg[j[m]])
-
-
-def cut_path(xy, s_m: float) -> np.ndarray:
-    """The polyline from its start to arclength ``s_m`` (the cut point included) [m]."""
-    xy = np.asarray(xy, float)
-    s0 = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
-    if s_m >= s0[-1]:
-        return xy.copy()
-    j = int(np.searchsorted(s0, s_m, side="right")) - 1
-    u = (s_m - s0[j]) / max(s0[j + 1] - s0[j], 1e-18)
-    end = xy[j] + u * (xy[j + 1] - xy[j])
-    return clean_polyline(np.vstack([xy[: j + 1], end]))
 
 
 def flown_route(lawn_xy, decision: ReturnDecision, home: HomePaths) -> np.ndarray:

@@ -211,3 +211,15 @@ def refined_path(cost: EdgeCostContext, exact: EdgeCostContext, roadmap: Roadmap
     best = roadmap_path(exact, roadmap, start_xy, goal_xy)
     bit = bitstar_path(cost, exact, start_xy, goal_xy, seconds, seed)
     return bit if bit is not None and bit.energy_J < best.energy_J else best
+
+
+def cut_path(xy, s_m: float) -> np.ndarray:
+    """The polyline from its start to arclength ``s_m`` (the cut point included) [m]."""
+    xy = np.asarray(xy, float)
+    s0 = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+    if s_m >= s0[-1]:
+        return xy.copy()
+    j = int(np.searchsorted(s0, s_m, side="right")) - 1
+    u = (s_m - s0[j]) / max(s0[j + 1] - s0[j], 1e-18)
+    end = xy[j] + u * (xy[j + 1] - xy[j])
+    return clean_polyline(np.vstack([xy[: j + 1], end]))

@@ -1,0 +1,251 @@
+"""Complete sweeps: the coverage patterns the tour planner starts from, and where each turns home.
+
+Problem (kept apart from how it is solved): among complete coverage routes of the free
+workspace (home -> boustrophedon lane pieces -> home) at every sweep angle the lawnmower
+baseline tries and in several lane orders, find the one that senses most before the robot
+has to turn home under a homing rule, checked at every point ``v`` of the route:
+
+    closed loop (flown):      E(v) + E_home(v) + reserve(return only)          <= E_left
+    open loop (guaranteed):   E(v) + E_home(v) + reserve(E(v) + E_home(v))     <= E_left
+
+and, with a time limit, ``t(v) + T_home(v) <= time left``. ``E(v)`` is the energy used to
+reach ``v`` along the route, ``E_home(v)`` that of the way home from there
+(``planning.homepaths``). A robot that measures its energy in flight knows ``E(v)``: only its
+way home is still uncertain, so the closed-loop rule keeps a reserve for the return alone; a
+plan that must hold without measurement (open loop) keeps it for the whole trip. The closed
+loop therefore flies farther; the open-loop extent is what is guaranteed before take-off.
+
+How it is solved: each lane order at each angle is scored with straight joins on the
+planning model's fast terrain (``score_route``: the turn point to within ``step``); the best
+few are joined round obstacles over the roadmap (``lawnmower.join_pieces``) and scored again,
+and the baseline lawnmower's own route is always among them, so the sweep returned senses at
+least as much as the baseline under the same rule, by construction. Lane orders
+(``lane_orders``): edge to edge either way (the baseline's), and orders that start at the lane
+nearest home and work outward, or work inward to end near home, so a mission that must turn
+home early has covered what is near home and keeps its way home short (an anytime order).
+Pieces of one lane are driven in the direction whose first piece starts nearest the robot.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from orange_plan.planning.lawnmower import (
+    DEFAULT_ANGLES_DEG,
+    cumulative_energy_time,
+    densify,
+    join_pieces,
+    straight_route,
+    sweep_lanes,
+)
+from orange_plan.planning.paths import cut_path
+from orange_plan.planning.reach import reserve_J
+
+RESCORE = 4
+"""Best straight-joined sweeps joined round obstacles and scored again."""
+
+
+@dataclass(frozen=True)
+class RouteScore:
+    """Where a route turns home under the closed- and open-loop rules (module docstring).
+
+    Attributes
+    ----------
+    closed_s_m, open_s_m : arclength of the turn point [m] (the route's length: never turns)
+    closed_m2, open_m2 : area sensed up to there [m^2]
+    closed_used_J : planning-model energy used up to the closed-loop turn [J]
+    length_m : the route's length [m]
+    """
+
+    closed_s_m: float
+    open_s_m: float
+    closed_m2: float
+    open_m2: float
+    closed_used_J: float
+    length_m: float
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A complete coverage route and its score.
+
+    Attributes
+    ----------
+    xy_m : home -> lane pieces -> home, joined round obstacles [m]
+    angle_deg : lane direction [deg]
+    order : lane order name (``lane_orders``; "baseline": the lawnmower's own route)
+    score : ``RouteScore`` on the joined route
+    tried : (angle, order) pairs scored
+    """
+
+    xy_m: np.ndarray
+    angle_deg: float
+    order: str
+    score: RouteScore
+    tried: int
+
+
+def lane_orders(lanes, home_xy) -> dict[str, list[int]]:
+    """Orders of the lanes (indices in sweep order) to try.
+
+    ``edge``: first to last lane; ``out_*``: from the lane nearest home outward to one edge,
+    then from beside home outward to the other; ``in_*``: from one edge inward to home, then
+    from the other edge inward (the route ends near home).
+    """
+    n = len(lanes)
+    if n == 0:
+        return {}
+    home = np.asarray(home_xy, float)
+    near = [min(float(np.min(np.hypot(*(np.asarray(p) - home).T))) for p in lane)
+            for lane in lanes]
+    h = int(np.argmin(near))
+    up, down = list(range(h, n)), list(range(h - 1, -1, -1))
+    orders = {"edge": list(range(n)),
+              "out_up": up + down, "out_down": list(range(h, -1, -1)) + list(range(h + 1, n)),
+              "in_up": list(range(h + 1)) + list(range(n - 1, h, -1)),
+              "in_down": list(range(n - 1, h - 1, -1)) + list(range(h))}
+    unique, seen = {}, set()
+    for name, order in orders.items():
+        if tuple(order) not in seen:
+            seen.add(tuple(order))
+            unique[name] = order
+    return unique
+
+
+def ordered_pieces(lanes, order, start_xy) -> list[np.ndarray]:
+    """The lanes' pieces in driving order: each lane in the direction whose first piece
+    starts nearest where the robot is."""
+    at = np.asarray(start_xy, float)
+    out = []
+    for k in order:
+        forward = [np.asarray(p, float) for p in lanes[k]]
+        backward = [p[::-1] for p in forward[::-1]]
+        pieces = min((forward, backward), key=lambda ps: float(np.hypot(*(ps[0][0] - at))))
+        out += pieces
+        at = pieces[-1][1]
+    return out
+
+
+def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
+                step_m: float, max_length_m: float = math.inf) -> RouteScore:
+    """Turn points of a route under both rules (module docstring), on the planning model.
+
+    Parameters
+    ----------
+    ctx : Context; cost : edge-cost context (its speed and terrain: the reach's fast one)
+    home : ``homepaths.HomePaths``; grid : the coverage grid (area sensed)
+    xy : the route [m]; e_left_J : energy left to spend [J]; time_left_s : [s] (inf: none)
+    step_m : the route is cut into pieces at most this long (the turn's resolution) [m]
+    max_length_m : no robot can drive farther (``tour.drivable_m``): the route is scored up
+        to there only (a long sweep on a time-limited mission is mostly never reached) [m]
+    """
+    full = np.asarray(xy, float)
+    length = float(np.sum(np.hypot(*np.diff(full, axis=0).T)))
+    xy = densify(cut_path(full, max_length_m), step_m)
+    used, t = cumulative_energy_time(ctx, cost, xy)
+    back, var_back, back_m = _returns_along(home, xy, ctx.model)
+    reserve = ctx.scenario.mission.reserve
+    e_avail = ctx.scenario.battery.usable_J
+    closed = used + back + reserve_J(reserve, e_avail, var_back)
+    # open loop: the whole trip's variance, the return's relative spread applied to it (the
+    # exact check of the plan recomputes it from the walk's own gradient)
+    total = used + back
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(back > 0, np.sqrt(var_back) / back, ctx.model.discrepancy_rel_sd)
+    opened = total + reserve_J(reserve, e_avail, (rel * total) ** 2)
+    time_home = back_m / (home.speed_mps * max(ctx.conditions.duty_cycle, 1e-9))
+    late = t + time_home > time_left_s
+    s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+    k_closed = _last_ok(~((closed > e_left_J) | late))
+    k_open = _last_ok(~((opened > e_left_J) | late))
+    r = ctx.scenario.mission.sensor_radius_m
+    # the area from the route's own vertices (the dense cut only places the turn)
+    closed_m2 = _sensed_m2(grid, cut_path(full, s[k_closed]), r)
+    open_m2 = closed_m2 if k_open == k_closed else _sensed_m2(grid, cut_path(full, s[k_open]), r)
+    return RouteScore(float(s[k_closed]), float(s[k_open]), closed_m2, open_m2,
+                      float(used[k_closed]), length)
+
+
+RETURN_LOOKUPS = 2000
+"""Points of a scored route whose way home is looked up; the others are interpolated."""
+
+
+def _returns_along(home, xy, model):
+    """``home.returns`` at every point of a densely cut route, looked up at most at
+    ``RETURN_LOOKUPS`` of them (evenly spaced, ends included) and interpolated by arclength
+    between (the way home changes little over a few metres; the lookups' collision checks
+    dominate the scoring otherwise)."""
+    n = len(xy)
+    if n <= RETURN_LOOKUPS:
+        return home.returns(xy, model)
+    s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+    pick = np.unique(np.linspace(0, n - 1, RETURN_LOOKUPS).round().astype(int))
+    looked = home.returns(xy[pick], model)
+    # a point between a lookup with no way home and one with a way is treated as having none
+    return tuple(np.nan_to_num(np.interp(s, s[pick], values), nan=np.inf) for values in looked)
+
+
+def _last_ok(ok: np.ndarray) -> int:
+    """Index of the last point before the first one that breaks the rule (0: turn at once;
+    the last point when none breaks it)."""
+    bad = np.flatnonzero(~ok)
+    return len(ok) - 1 if bad.size == 0 else max(int(bad[0]) - 1, 0)
+
+
+def _sensed_m2(grid, xy, r: float) -> float:
+    if len(xy) < 2:
+        xy = np.vstack([xy, xy])
+    return float(len(grid.cells_near(xy, r)) * grid.cell_area_m2)
+
+
+def score_step_m(ctx) -> float:
+    """Resolution of the turn point: a tenth of the sensor's width, 0.2 to 10 m [m]."""
+    return float(np.clip(0.2 * ctx.scenario.mission.sensor_radius_m, 0.2, 10.0))
+
+
+def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: float | None = None,
+               time_left_s: float = math.inf, max_length_m: float = math.inf,
+               angles_deg=DEFAULT_ANGLES_DEG, rescore: int = RESCORE) -> Sweep | None:
+    """The complete sweep that senses most before the closed-loop rule turns it home.
+
+    ``baseline_xy`` (the lawnmower's route, joined) is scored on the same terms and wins
+    when nothing beats it. Ties go to the larger guaranteed (open-loop) area. None when no
+    lane fits.
+    """
+    r = ctx.scenario.mission.sensor_radius_m
+    cost = reach.fast
+    home_xy = np.asarray(reach.home_xy_m, float)
+    if e_left_J is None:
+        e_left_J = reach.energy_available_J - reach.energy_used_J
+    step = score_step_m(ctx)
+
+    def score(xy) -> RouteScore:
+        return score_route(ctx, cost, home, grid, xy, e_left_J, time_left_s, step,
+                           max_length_m)
+
+    def rank(s: RouteScore):
+        return (round(s.closed_m2, 3), round(s.open_m2, 3), -s.closed_used_J)
+
+    angles = sorted({float(a) % 180.0 for a in angles_deg})
+    straight = []
+    for angle in angles:
+        lanes = sweep_lanes(ctx.world, grid, r, angle)
+        for name, order in lane_orders(lanes, home_xy).items():
+            pieces = ordered_pieces(lanes, order, home_xy)
+            straight.append((rank(score(straight_route(home_xy, pieces)[0])), angle, name,
+                             pieces))
+    tried = len(straight)
+    straight.sort(key=lambda item: item[0], reverse=True)
+    joined = []
+    for _, angle, name, pieces in straight[:rescore]:
+        xy = join_pieces(home_xy, pieces, detours)[0]
+        joined.append(Sweep(xy, angle, name, score(xy), tried))
+    if baseline_xy is not None:
+        joined.append(Sweep(np.asarray(baseline_xy, float), math.nan, "baseline",
+                            score(baseline_xy), tried))
+    if not joined:
+        return None
+    return max(joined, key=lambda s: rank(s.score))
