@@ -34,8 +34,7 @@ from orange_plan.identify.online import OnlineEstimator, stream
 from orange_plan.model_builder import model_with_terms
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.physics.range import radial_probe_paths
-from orange_plan.planning.reach import reserve_J
-from orange_plan.scenario import Reserve
+from orange_plan.planning.reserve import ConfidenceReserve
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import truth_from_dict
@@ -330,10 +329,10 @@ def whole_run_energy_J(model, rec, ctx, settings: dict) -> float:
 
 def reserve_exceeded(recorded_J, predicted_J, sd_J, confidence: float) -> np.ndarray:
     """True where a recorded energy exceeds predicted + the ``confidence`` reserve, the
-    reserve sized exactly as the planner sizes it (``planning.reach.reserve_J``)."""
+    reserve sized exactly as the planner sizes it (``planning.reserve``)."""
 
     sd = np.asarray(sd_J, float)
-    reserve = reserve_J(Reserve("confidence", confidence), 0.0, sd**2)
+    reserve = ConfidenceReserve(confidence).size_J(0.0, sd**2, 0.0)
     return np.asarray(recorded_J, float) > np.asarray(predicted_J, float) + reserve
 
 

@@ -59,7 +59,7 @@ def reach_cmd(
             field = query_points(reach, points)
             title = (f"{ctx.scenario.name}: reach at {reach.exact.speed_mps:.2f} m/s; energy used "
                      f"{energy_used_J / 1e3:,.1f} of {reach.energy_available_J / 1e3:,.1f} kJ, "
-                     f"reserve {_reserve_text(ctx.scenario.mission.reserve)}")
+                     f"reserve {reach.reserve.describe()}")
             plot_reach(reach, field, xs, ys, results, png, title)
     report = {
         "home_xy_m": list(reach.home_xy_m),
@@ -80,11 +80,6 @@ def reach_cmd(
         print_json(report)
         return
     _print_report(ctx.scenario.name, report, png)
-
-
-def _reserve_text(reserve) -> str:
-    return {"fraction": f"{reserve.value:g} of E_avail", "energy_J": f"{reserve.value:g} J",
-            "confidence": f"p = {reserve.value:g}"}[reserve.kind]
 
 
 def _kj(value) -> str:

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from orange_plan.errors import PlanningError
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
 from orange_plan.planning.paths import clean_polyline, distinct_vertices
+from orange_plan.planning.reserve import reserve_from
 
 DEFAULT_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 10))
 """Sweep angles tried by ``best_energy_sweep_angle_deg`` [deg]; the best one is refined by
@@ -342,11 +343,8 @@ def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
     from orange_plan.planning.coverage import best_sweep_angle_deg
 
     sc = ctx.scenario
-    budget = sc.battery.usable_J
-    if sc.mission.reserve.kind == "fraction":
-        budget *= 1 - sc.mission.reserve.value
-    elif sc.mission.reserve.kind == "energy_J":
-        budget -= sc.mission.reserve.value
+    # no run-to-run spread counted: a confidence reserve keeps nothing back here
+    budget = reserve_from(sc).budget_guess_J(sc.battery.usable_J, sc.battery.usable_J, 0.0)
     e_per_m = simplified_range(sc, ctx.model, ctx.world.default_crr).energy_per_m_J
     home = ctx.world.home_xy_m
     r = ctx.scenario.mission.sensor_radius_m

@@ -20,7 +20,6 @@ answers are conservative).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from statistics import NormalDist
 
 import numpy as np
 import shapely
@@ -30,6 +29,7 @@ from orange_plan.errors import InputError
 from orange_plan.mission import TimeLimitCheck, check_time_limit
 from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
 from orange_plan.planning.paths import clean_polyline, dedupe, evaluate_path, path_gradient
+from orange_plan.planning.reserve import ReserveRule, from_scenario, reserve_from
 from orange_plan.planning.roadmap import (
     EdgeCostContext,
     EnergyField,
@@ -48,30 +48,15 @@ K_NEAREST = 12
 
 
 def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
-    """Energy kept back for getting home [J].
+    """Energy kept back for getting home [J] (``ReserveRule.size_J``).
 
     Parameters
     ----------
-    reserve : scenario ``mission.reserve`` (kind ``fraction``, ``energy_J`` or ``confidence``)
+    reserve : a ``planning.reserve`` rule, or the scenario's ``mission.reserve``
     energy_available_J : usable battery energy E_avail [J]
-    variance_J2 : predictive variance of the round trip's energy,
-        ``EnergyModel.predictive_variance_J2(g, E)`` = ``g' Cov g + (discrepancy_rel_sd E)^2``
-        (coefficient uncertainty plus run-to-run discrepancy) [J^2]; any shape
-
-    Notes
-    -----
-    ``confidence = p``: the round-trip energy is taken as normal with the model's predictive
-    variance, so ``z_p sqrt(variance)`` above the planned energy is enough with probability p
-    (DESIGN.md: the reserve is sized by the model, not a magic margin). ``bench calibration``
-    measures how often real runs exceed it.
+    variance_J2 : predictive variance of the round trip's energy [J^2]; any shape
     """
-    var = np.asarray(variance_J2, float)
-    if reserve.kind == "fraction":
-        return np.full(var.shape, reserve.value * energy_available_J)
-    if reserve.kind == "energy_J":
-        return np.full(var.shape, float(reserve.value))
-    # the standard library's quantile: scipy.stats alone took seconds to import
-    return NormalDist().inv_cdf(reserve.value) * np.sqrt(np.clip(var, 0.0, None))
+    return from_scenario(reserve).size_J(0.0, variance_J2, energy_available_J)
 
 
 # --- set-up -------------------------------------------------------------------------------
@@ -89,7 +74,7 @@ class Reachability:
     from_start, to_home : Dijkstra fields
     start_index : start vertex (== roadmap.home_index without ``--from``)
     energy_available_J, energy_used_J : usable battery energy, energy spent so far [J]
-    reserve : the scenario's reserve rule
+    reserve : the scenario's reserve rule (``planning.reserve``)
     time_limit_s : ``mission.time_limit_s`` (None: none) [s]; time_used_s : mission time so
         far [s]
     """
@@ -103,7 +88,7 @@ class Reachability:
     start_index: int
     energy_available_J: float
     energy_used_J: float
-    reserve: object
+    reserve: ReserveRule
     time_limit_s: float | None = None
     time_used_s: float = 0.0
 
@@ -141,7 +126,7 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
     rest = (float(speed_mps), ctx.conditions)
     # Energy gradients (for variances) cost time; only a confidence reserve needs them,
     # unless the caller asks (the tour planner reports a return probability for any reserve).
-    gradient = sc.mission.reserve.kind == "confidence" if with_gradient is None else with_gradient
+    gradient = reserve_from(sc).needs_variance if with_gradient is None else with_gradient
     accel = sc.robot.accel_max_mps2
     return (EdgeCostContext(*common, terrain, *rest, step_m=step, with_gradient=gradient,
                             accel_max_mps2=accel),
@@ -195,7 +180,7 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
     to_home = energy_field(roadmap, roadmap.home_index, towards=True)
     mission = ctx.scenario.mission
     return Reachability(fast, exact, terrain, roadmap, from_start, to_home, start, available,
-                        float(energy_used_J), mission.reserve, mission.time_limit_s,
+                        float(energy_used_J), from_scenario(mission.reserve), mission.time_limit_s,
                         float(time_used_s))
 
 
@@ -291,10 +276,10 @@ def _infeasible_reason(margin_J: float, time: TimeLimitCheck, what: str) -> str 
 def _reserve_of(reach: Reachability, xy, energy_J: float) -> float:
     """Reserve of the path ``xy`` whose exact energy is ``energy_J`` [J]."""
     var = 0.0
-    if reach.reserve.kind == "confidence":
+    if reach.reserve.needs_variance:
         gradient = path_gradient(reach.exact, xy)
         var = reach.exact.model.predictive_variance_J2(gradient, energy_J)
-    return float(reserve_J(reach.reserve, reach.energy_available_J, var))
+    return float(reach.reserve.size_J(energy_J, var, reach.energy_available_J))
 
 
 def invalid_reason(world, x_m: float, y_m: float) -> str | None:
@@ -449,13 +434,13 @@ def _query_chunk(reach: Reachability, pts: np.ndarray, k: int) -> PointsReach:
     rows = np.arange(n)
     to_goal, to_home = e_in[rows, bi], e_out[rows, bo]
     var = np.zeros(n)
-    if reach.reserve.kind == "confidence":
+    if reach.reserve.needs_variance:
         kk = j_in.shape[1]
         g = (reach.from_start.gradient[near[rows, bi]] + j_in.reshape(n, k, kk)[rows, bi]
              + j_out.reshape(n, k, kk)[rows, bo] + reach.to_home.gradient[near[rows, bo]])
         with np.errstate(invalid="ignore"):  # unreachable points: inf energy, nan variance
             var = fast.model.predictive_variance_J2(g, to_goal + to_home)
-    res = reserve_J(reach.reserve, reach.energy_available_J, var)
+    res = reach.reserve.size_J(to_goal + to_home, var, reach.energy_available_J)
     with np.errstate(invalid="ignore"):
         margin = reach.energy_available_J - reach.energy_used_J - to_goal - to_home - res
     return PointsReach(to_goal, to_home, res, margin, valid)

@@ -62,7 +62,6 @@ import numpy as np
 import pandas as pd
 import shapely
 from scipy.spatial import cKDTree
-from scipy.stats import norm
 from shapely.geometry import MultiPolygon, Polygon, shape
 
 from orange_plan.errors import InputError
@@ -73,7 +72,8 @@ from orange_plan.physics.state import MotionState
 from orange_plan.planning.coverage import footprint
 from orange_plan.planning.paths import distinct_vertices
 from orange_plan.planning.plan import Plan, StartState
-from orange_plan.planning.reach import prepare_reach, reserve_J, way_home
+from orange_plan.planning.reach import prepare_reach, way_home
+from orange_plan.planning.reserve import reserve_from
 from orange_plan.telemetry.recording import recording_from_frame
 from orange_plan.telemetry.state import recording_state
 
@@ -390,8 +390,8 @@ class MissionSession:
         avail = self.energy_available_J
         home = self._return_home()
         margin = avail - used - home.energy_J - home.reserve_J
-        prob = _probability(avail - used - home.energy_J, home.sd_J)
-        res_rule = self.ctx.scenario.mission.reserve
+        res_rule = reserve_from(self.ctx.scenario)
+        prob = float(res_rule.return_probability(avail - used - home.energy_J, home.sd_J))
         left = max(avail - used - home.reserve_J, 0.0)
         per_m = self._energy_per_m_J()
         figures = dict(
@@ -407,7 +407,7 @@ class MissionSession:
                             f"{used:,.0f} J used + {home.energy_J:,.0f} J to home + "
                             f"{home.reserve_J:,.0f} J reserve exceed {avail:,.0f} J available",
                             **figures)
-        if res_rule.kind == "confidence" and prob < res_rule.value:
+        if res_rule.falls_short(prob):
             return Decision("return_home", f"the probability of getting home is {prob:.4f}, "
                             f"below the reserve's confidence {res_rule.value:g}", **figures)
         reason = self._replan_reason(used, avail)
@@ -479,15 +479,14 @@ class MissionSession:
             if back is None:
                 continue
             if len(back) < 2:  # at home
-                return _Home(0.0, float(reserve_J(self.ctx.scenario.mission.reserve,
-                                                  self.energy_available_J, 0.0)), 0.0)
+                return _Home(0.0, float(reach.reserve.return_only_J(
+                    0.0, 0.0, self.energy_available_J)), 0.0)
             driven = drive(exact, back, exact.speed_mps)
             energy = float(driven.energy_J[-1])
             var = float(model.energy_variance_J2(driven.gradient[-1]))
             spread = self._relative_spread() * energy
             sd = math.sqrt(max(var, 0.0) + spread**2)
-            res = float(reserve_J(self.ctx.scenario.mission.reserve, self.energy_available_J,
-                                  sd**2))
+            res = float(reach.reserve.return_only_J(energy, sd**2, self.energy_available_J))
             return _Home(energy, res, sd)
         return _Home(math.inf, 0.0, 0.0)
 
@@ -538,9 +537,7 @@ class MissionSession:
         ratio = online[-1] / planned[-1] if planned[-1] > 0 else 1.0
         idx = np.r_[k, k + 1 + np.flatnonzero(keep[1:])]
         to_home = plan.energy_to_home_J[idx] * ratio
-        res = plan.reserve_J[idx]
-        if self.ctx.scenario.mission.reserve.kind == "confidence":
-            res = res * ratio
+        res = reserve_from(self.ctx.scenario).rescaled_J(plan.reserve_J[idx], ratio)
         return float(np.min(avail - used - online - to_home - res))
 
     # --- replanning ----------------------------------------------------------------------
@@ -722,12 +719,6 @@ def _distance_to_segments(p, a, b) -> np.ndarray:
     length2 = np.einsum("ij,ij->i", ab, ab)
     t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.where(length2 > 0, length2, 1.0), 0, 1)
     return np.hypot(*(p - (a + t[:, None] * ab)).T)
-
-
-def _probability(slack_J: float, sd_J: float) -> float:
-    if sd_J > 0:
-        return float(norm.cdf(slack_J / sd_J))
-    return 1.0 if slack_J >= 0 else 0.0
 
 
 def _records(frame: pd.DataFrame) -> dict:

@@ -54,8 +54,8 @@ from orange_plan.planning.reach import (
     home_status,
     prepare_reach,
     query_points,
-    reserve_J,
 )
+from orange_plan.planning.reserve import reserve_from
 from orange_plan.planning.returns import DrivenReturns
 from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, energy_field
 
@@ -335,19 +335,11 @@ def tour_speed_mps(ctx, start: StartState) -> float:
 
 def _motion_energy_guess(ctx, start: StartState) -> float:
     """Energy left for driving once the reserve is set aside, guessed before any path exists
-    [J]: a confidence reserve is taken as ``z_p`` times the run-to-run spread of that energy
-    (the coefficient part, path-dependent, is left to the exact check)."""
-    from statistics import NormalDist
-
+    [J] (``ReserveRule.budget_guess_J``: a confidence reserve from the run-to-run spread)."""
     sc = ctx.scenario
     available = sc.battery.usable_J
-    left = available - start.energy_used_J
-    res = sc.mission.reserve
-    if res.kind == "fraction":
-        return left - res.value * available
-    if res.kind == "energy_J":
-        return left - res.value
-    return left / (1.0 + NormalDist().inv_cdf(res.value) * ctx.model.discrepancy_rel_sd)
+    return reserve_from(sc).budget_guess_J(available - start.energy_used_J, available,
+                                           ctx.model.discrepancy_rel_sd)
 
 
 def _time_left_s(ctx, start: StartState) -> float:
@@ -547,10 +539,11 @@ def _probe(setup: TourSetup) -> tuple[float, float]:
     cruise = path_energy(ex.model, ex.world, xy, ex.speed_mps, ex.conditions).duration_s
     time_factor = max(1.0, float(walk.time_s[-1]) / cruise) if cruise > 0 else 1.0
     left = reach.energy_available_J - reach.energy_used_J
-    if res.kind != "confidence":
-        return float(reserve_J(res, reach.energy_available_J, 0.0)) / max(left, 1e-9), time_factor
+    if not res.needs_variance:
+        return float(res.size_J(0.0, 0.0, reach.energy_available_J)) / max(left, 1e-9), time_factor
     var = _variance(reach, walk.energy_J[-1], walk.gradient[-1])
-    ratio = float(reserve_J(res, reach.energy_available_J, var)) / max(walk.energy_J[-1], 1e-9)
+    ratio = float(res.size_J(walk.energy_J[-1], var, reach.energy_available_J)) / max(
+        walk.energy_J[-1], 1e-9)
     # reserve ~ ratio * E_tour and E_tour + reserve <= left
     return ratio / (1.0 + ratio), time_factor
 
@@ -676,7 +669,7 @@ def evaluate_walk(ctx, setup: TourSetup, ids: np.ndarray, start: StartState,
     needed = walk.energy_J + home.energy_J  # what must still come out of the battery
     gradient = walk.gradient + home.gradient
     var = _variance(reach, needed, gradient)
-    res = reserve_J(reach.reserve, reach.energy_available_J, var)
+    res = reach.reserve.size_J(needed, var, reach.energy_available_J)
     margin = reach.energy_available_J - used - home.energy_J - res
     plan = Plan(xy, start.time_s + walk.time_s, np.r_[speeds, speeds[-1]], used, home.energy_J,
                 res, margin, np.empty((0, 2)), None, {})
@@ -799,7 +792,7 @@ def _variance(reach: Reachability, energy_J, gradient, always: bool = False) -> 
     a confidence, or ``always``): the coefficients' covariance along ``gradient`` plus the
     run-to-run discrepancy (``EnergyModel.predictive_variance_J2``, as every reserve)."""
     energy = np.asarray(energy_J, float)
-    if reach.reserve.kind != "confidence" and not always:
+    if not reach.reserve.needs_variance and not always:
         return np.zeros(energy.shape)
     var = reach.exact.model.predictive_variance_J2(gradient, energy)
     return np.asarray(var, float).reshape(energy.shape)
@@ -838,7 +831,7 @@ def _finish(ctx, setup: TourSetup, plan: Plan, tour, variance, start: StartState
         "energy_used_start_J": reach.energy_used_J,
         "candidates_visited": len(tour.nodes),
         "min_margin_J": float(plan.margin_J.min()),
-        "reserve_rule": f"{reach.reserve.kind} = {reach.reserve.value:g}",
+        "reserve_rule": reach.reserve.rule_text(),
     }
     return replace(plan, waypoints_xy_m=waypoints, covered=covered, summary=summary)
 
@@ -858,11 +851,6 @@ def return_probability(reach: Reachability, plan: Plan, variance_J2) -> float:
     The energy still needed at a vertex (used so far + return) is taken as normal around its
     planned value with its predictive variance ``variance_J2``, whatever the reserve rule.
     """
-    from statistics import NormalDist
-
     slack = reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J
     sd = np.sqrt(np.maximum(np.asarray(variance_J2, float), 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(sd > 0, slack / sd, np.where(slack >= 0, np.inf, -np.inf))
-    worst = float(z.min())
-    return 1.0 if worst == np.inf else 0.0 if worst == -np.inf else NormalDist().cdf(worst)
+    return float(reach.reserve.return_probability(slack, sd).min())
