@@ -12,6 +12,9 @@ ways on the same map, under the same truth and seed:
 (b) ``open_loop``: the same first tour flown as planned, whatever happens.
 (c) ``lawnmower``: a boustrophedon (``planning.lawnmower``) turned home in flight by the
     PX4-style remaining-flight-time rule (``bench.px4_rtl``).
+(e) ``lawnmower_energy``: the same boustrophedon turned home by the session's energy rule
+    (``bench.px4_rtl.EnergyRule``: measured energy + the way home + the reserve for the
+    return alone), so that the pattern and the rule can be told apart.
 (d) ``oracle``: a tour planned with the true model (the truth's coefficients, payload, mean
     wind and usable energy; the same reserve rule and covariance), flown open loop.
 
@@ -70,12 +73,13 @@ from orange_plan.sweep.flight import (
     stranding_upper_bound,
 )
 
-METHODS = ("session", "open_loop", "lawnmower", "oracle")
-"""Method ids: (a), (b), (c), (d)."""
+METHODS = ("session", "open_loop", "lawnmower", "lawnmower_energy", "oracle")
+"""Method ids: (a), (b), (c), (e), (d)."""
 
 METHOD_LABELS = {"session": "(a) session + replanning",
                  "open_loop": "(b) first plan, open loop",
                  "lawnmower": "(c) lawnmower + PX4 RTL",
+                 "lawnmower_energy": "(e) lawnmower + energy rule",
                  "oracle": "(d) oracle (true model)"}
 
 FAMILIES = ("within", "beyond")
@@ -181,7 +185,7 @@ def study_scenario(folder: Path, spec: MissionSpec) -> Path:
 
 def map_kit(spec: MissionSpec) -> _MapKit:
     """Context, first tour, lawnmower and return paths of the spec's map (memoised)."""
-    from orange_plan.bench.px4_rtl import HomePaths
+    from orange_plan.bench.plan import driven_home
     from orange_plan.context import load_context
     from orange_plan.planning.lawnmower import plan_lawnmower
     from orange_plan.planning.reach import prepare_reach
@@ -197,7 +201,7 @@ def map_kit(spec: MissionSpec) -> _MapKit:
         plan, error = None, f"{type(exc).__name__}: {exc}"
     reach = prepare_reach(ctx, n_vertices=spec.n_vertices)
     lawn = plan_lawnmower(ctx, reach)
-    kit = _MapKit(ctx, plan, error, np.asarray(lawn.xy_m, float), HomePaths(reach), reach)
+    kit = _MapKit(ctx, plan, error, np.asarray(lawn.xy_m, float), driven_home(reach), reach)
     _CACHE[key] = kit
     return kit
 
@@ -262,12 +266,14 @@ def oracle_context(ctx, truth):
 # --- flights ------------------------------------------------------------------------------
 
 
-def fly_lawnmower(kit: _MapKit, truth, seed: int, rate: float) -> dict:
-    """(c): the lawnmower turned home by the PX4-style rule."""
-    from orange_plan.bench.px4_rtl import fly_with_return_rule
+def fly_lawnmower(kit: _MapKit, truth, seed: int, rate: float, rule=None) -> dict:
+    """(c): the lawnmower turned home by the PX4-style rule; (e) with ``rule`` = the
+    session's ``EnergyRule`` (the same path: the pattern and the rule told apart)."""
+    from orange_plan.bench.px4_rtl import ReturnRule, fly_with_return_rule
 
     sim, decision, _ = fly_with_return_rule(kit.ctx, kit.lawn_xy, kit.home, truth, seed,
-                                            cost=kit.reach.fast, sample_rate_Hz=rate)
+                                            rule=rule or ReturnRule(), cost=kit.reach.fast,
+                                            sample_rate_Hz=rate)
     flown = _Flown(1.0 / rate, [], [], sim.energy_available_J,
                    returned_by_rule=bool(decision.fired))
     flown.add(sim.frame)
@@ -372,6 +378,10 @@ def run_one_mission(spec: MissionSpec, seed: int) -> dict:
                 res = fly_open_loop(ctx, kit.plan, truth, seed, rate)
             elif method == "lawnmower":
                 res = fly_lawnmower(kit, truth, seed, rate)
+            elif method == "lawnmower_energy":
+                from orange_plan.bench.px4_rtl import EnergyRule
+
+                res = fly_lawnmower(kit, truth, seed, rate, EnergyRule())
             elif method == "oracle":
                 from orange_plan.planning.tour import plan_tour
 
@@ -504,7 +514,8 @@ def run_mission_study(n: int, seed: int = 0, n_maps: int = 10, workers: int = 1,
 
 
 SHORT_LABELS = {"session": "(a) session", "open_loop": "(b) open loop",
-                "lawnmower": "(c) lawnmower", "oracle": "(d) oracle"}
+                "lawnmower": "(c) lawnmower", "lawnmower_energy": "(e) lawnmower, energy",
+                "oracle": "(d) oracle"}
 
 
 def table_rows(result: dict) -> list[dict]:
@@ -566,7 +577,8 @@ def mission_figure(result: dict, path) -> Path:
     from orange_plan.atomic import save_figure
 
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
-    markers = {"session": "o", "open_loop": "^", "lawnmower": "s", "oracle": "D"}
+    markers = {"session": "o", "open_loop": "^", "lawnmower": "s", "lawnmower_energy": "P",
+               "oracle": "D"}
     colours = {"all": "k", "within": "tab:blue", "beyond": "tab:red"}
     rows = [r for r in result["rows"]] + [r for r in result["by_family"]]
     shares = [0.0]

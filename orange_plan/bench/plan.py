@@ -42,14 +42,22 @@ import numpy as np
 from orange_plan.errors import InputError, OrangeError
 from orange_plan.sweep.flight import HOME_TOLERANCE_M, flown_footprint
 
-METHODS = ("lawnmower", "distance", "physics")
-"""Method ids: (a), (b), (c)."""
+METHODS = ("lawnmower", "lawnmower_energy", "distance", "physics")
+"""Method ids: (a), (e), (b), (c)."""
 
 METHOD_LABELS = {"lawnmower": "(a) lawnmower",
+                 "lawnmower_energy": "(e) lawnmower, energy rule",
                  "distance": "(b) distance",
                  "physics": "(c) physics"}
-"""Short labels: (a) lawnmower + PX4 return rule, (b) the planner with a distance budget,
-(c) the planner with the energy model."""
+"""Short labels: (a) lawnmower + PX4 return rule, (e) the same lawnmower + the session's
+energy rule, (b) the planner with a distance budget, (c) the planner with the energy model,
+flown in closed loop."""
+
+LAWNMOWERS = ("lawnmower", "lawnmower_energy")
+"""Methods that fly the lawnmower (one plan, two return rules)."""
+
+BUDGET_SHARES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+"""Shares of the usable energy at which the coverage-against-budget curve is read [-]."""
 
 DEFAULT_SCENARIOS = ("kiwibot_campus", "ar_drone_wind", "marine_survey", "husky_a200", "random")
 """Shipped scenarios (scenarios/NAME.toml) and the random family, in table order."""
@@ -105,6 +113,8 @@ class MethodResult:
         median over the maps [m^2]
     flights : one per truth
     error : why the method produced no plan (then no flights)
+    budget_curve : ((share of the usable energy, area sensed before the closed-loop rule
+        turns home on the planning model [m^2]), ...), median over the maps
     """
 
     scenario: str
@@ -116,6 +126,7 @@ class MethodResult:
     error: str | None = None
     time_limit_s: float | None = None
     planner_bound_m2: float | None = None
+    budget_curve: tuple | None = None
 
     def _median(self, key: str) -> float | None:
         values = [getattr(f, key) for f in self.flights]
@@ -154,7 +165,9 @@ class MethodResult:
                 "duration_s": self._median("duration_s"),
                 "coverage_bound_m2": self.coverage_bound_m2,
                 "planned_coverage_m2": self.planned_coverage_m2,
-                "planner_bound_m2": self.planner_bound_m2, "error": self.error}
+                "planner_bound_m2": self.planner_bound_m2, "error": self.error,
+                "budget_curve": None if self.budget_curve is None
+                else [list(point) for point in self.budget_curve]}
 
 
 @dataclass(frozen=True)
@@ -307,6 +320,7 @@ class _MapRun:
     bound_m2: float = math.nan
     time_limit_s: float | None = None
     planner_bound: dict = field(default_factory=dict)
+    budget_curves: dict = field(default_factory=dict)
 
 
 def at_confidence(planner: Planner, confidence: float | None) -> Planner:
@@ -330,7 +344,7 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
             methods=METHODS, n_vertices: int = 3000, sample_rate_Hz: float = 10.0,
             step: Callable[[str], None] = lambda s: None) -> _MapRun:
     """Plan with each method on one map and fly each plan under ``len(seeds)`` truths."""
-    from orange_plan.bench.px4_rtl import HomePaths, fly_with_return_rule
+    from orange_plan.bench.px4_rtl import EnergyRule, ReturnRule, fly_with_return_rule
     from orange_plan.planning.lawnmower import plan_lawnmower
     from orange_plan.planning.reach import prepare_reach
     from orange_plan.sim.perturb import calibration_truths
@@ -343,9 +357,15 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
         step(f"{name}: planning ({METHOD_LABELS[method]})")
         t0 = time.perf_counter()
         try:
-            if method == "lawnmower":
-                reach = prepare_reach(ctx, n_vertices=n_vertices)
-                plans[method] = (plan_lawnmower(ctx, reach), HomePaths(reach), reach)
+            if method in LAWNMOWERS:
+                if "lawnmower" not in plans:
+                    reach = prepare_reach(ctx, n_vertices=n_vertices)
+                    plans["lawnmower"] = (plan_lawnmower(ctx, reach), driven_home(reach),
+                                          reach)
+                    lawn_s = time.perf_counter() - t0
+                plans[method] = plans["lawnmower"]
+                run.seconds[method] = lawn_s
+                continue
             else:
                 if planner is None:
                     raise InputError("no tour planner available")
@@ -361,6 +381,8 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
             run.planner_bound[method] = (plan.summary or {}).get("coverage_bound_m2")
     run.bound_m2 = coverage_bound_m2(ctx)
     truths = calibration_truths(ctx, len(seeds), seed=truth_seed)
+    homing = _homing_kit(ctx, plans, n_vertices)
+    run.budget_curves = budget_curves(ctx, plans, homing)
     with tempfile.TemporaryDirectory(prefix="orange-bench-") as tmp:
         routes = {m: _route_via_geojson(plans[m], Path(tmp), m) for m in ("distance", "physics")
                   if m in plans}
@@ -368,10 +390,17 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
             step(f"{name}: flights, seed {seed}")
             for method in [m for m in methods if m in plans and m not in run.errors]:
                 try:
-                    if method == "lawnmower":
+                    if method in LAWNMOWERS:
                         lawn, home, reach = plans["lawnmower"]
+                        rule = ReturnRule() if method == "lawnmower" else EnergyRule()
                         sim, decision, _ = fly_with_return_rule(
-                            ctx, lawn.xy_m, home, truth, seed, cost=reach.fast,
+                            ctx, lawn.xy_m, home, truth, seed, rule=rule, cost=reach.fast,
+                            sample_rate_Hz=sample_rate_Hz)
+                        turned = decision.t_s if decision.fired else None
+                    elif method == "physics":
+                        route, home, cost = closed_loop_route(plans[method], homing)
+                        sim, decision, _ = fly_with_return_rule(
+                            ctx, route, home, truth, seed, rule=EnergyRule(), cost=cost,
                             sample_rate_Hz=sample_rate_Hz)
                         turned = decision.t_s if decision.fired else None
                     else:
@@ -386,6 +415,85 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
     return run
 
 
+@dataclass(frozen=True)
+class _HomingKit:
+    """What the closed-loop flights and the budget curves read on one map: the ways home,
+    the fast edge costs (the rule's prediction of the path flown) and the coverage grid."""
+
+    home: object
+    cost: object
+    grid: object
+
+
+def _homing_kit(ctx, plans: dict, n_vertices: int) -> _HomingKit:
+    """The lawnmower's roadmap (every method's way home, so the rules compare on equal
+    terms), built here when the lawnmower was not planned."""
+    from orange_plan.planning.coverage import coverage_grid
+    from orange_plan.planning.reach import prepare_reach
+
+    if "lawnmower" in plans:
+        _, home, reach = plans["lawnmower"]
+    else:
+        reach = prepare_reach(ctx, n_vertices=n_vertices)
+        home = driven_home(reach)
+    grid = coverage_grid(ctx.world, ctx.scenario.mission.sensor_radius_m)
+    return _HomingKit(home, reach.fast, grid)
+
+
+def driven_home(reach):
+    """``HomePaths`` of a reach, its energies fitted to returns as driven (ramps, stops and
+    the final wait: what the simulator flies)."""
+    import functools
+
+    from orange_plan.bench.px4_rtl import HomePaths
+    from orange_plan.planning.tour import driven_energy_J
+
+    return HomePaths(reach).calibrate(functools.partial(driven_energy_J, reach.exact))
+
+
+def closed_loop_route(plan, homing: _HomingKit):
+    """(route, ways home, costs) of a plan flown in closed loop: the tour up to its turn
+    point, then its continuation (``Plan.continuation_xy_m``), at the plan's median speed;
+    a plan without a continuation is flown whole (the rule may still turn it home early)."""
+    import copy
+
+    xy = np.asarray(plan.xy_m, float)
+    route = xy
+    rest = plan.continuation_xy_m
+    if rest is not None and len(rest) >= 2:
+        turn = np.flatnonzero(np.hypot(*(xy - np.asarray(rest[0])).T) < 1e-6)
+        if turn.size:
+            route = np.vstack([xy[: int(turn[0]) + 1], np.asarray(rest, float)[1:]])
+    home = copy.copy(homing.home)
+    home.speed_mps = float(np.median(plan.speed_mps))
+    return route, home, homing.cost
+
+
+def budget_curves(ctx, plans: dict, homing: _HomingKit) -> dict:
+    """Coverage against budget: for each method's route, the area sensed before the
+    closed-loop rule turns it home with ``share`` of the usable energy, on the planning model
+    (``planning.sweeps.score_route``) [m^2] -> {method: [[share, m2], ...]}. An order that
+    covers what is near home first keeps more when the mission must turn home early."""
+    from orange_plan.planning.sweeps import score_route, score_step_m
+
+    usable = ctx.scenario.battery.usable_J
+    limit = ctx.scenario.mission.time_limit_s
+    routes = {}
+    if "lawnmower" in plans:
+        routes["lawnmower"] = plans["lawnmower"][0].xy_m
+    for method in ("distance", "physics"):
+        if method in plans:
+            routes[method] = closed_loop_route(plans[method], homing)[0]
+    curves = {}
+    for method, route in routes.items():
+        curves[method] = [
+            [share, score_route(ctx, homing.cost, homing.home, homing.grid, route,
+                                share * usable, math.inf if limit is None else limit,
+                                score_step_m(ctx)).closed_m2]
+            for share in BUDGET_SHARES]
+    return curves
+
+
 # --- the benchmark -----------------------------------------------------------------------
 
 
@@ -397,13 +505,25 @@ def _merge(spec: ScenarioSpec, runs: list[_MapRun], methods) -> list[MethodResul
         errors = [r.errors[method] for r in runs if method in r.errors]
         pbound = [r.planner_bound[method] for r in runs if r.planner_bound.get(method)]
         flights = tuple(f for r in runs for f in r.flights[method])
+        curve = _median_curve([r.budget_curves.get(
+            "lawnmower" if method in LAWNMOWERS else method) for r in runs])
         out.append(MethodResult(
             spec.name, method, float(statistics.median(secs)) if secs else math.nan,
             float(statistics.median(r.bound_m2 for r in runs)),
             float(statistics.median(planned)) if planned else None, flights,
             errors[0] if errors else None, runs[0].time_limit_s if runs else None,
-            float(statistics.median(pbound)) if pbound else None))
+            float(statistics.median(pbound)) if pbound else None, curve))
     return out
+
+
+def _median_curve(curves) -> tuple | None:
+    """Point-by-point median of the maps' budget curves (same shares), or None."""
+    curves = [c for c in curves if c]
+    if not curves:
+        return None
+    shares = [share for share, _ in curves[0]]
+    return tuple((share, float(statistics.median(c[k][1] for c in curves)))
+                 for k, share in enumerate(shares))
 
 
 def run_plan_bench(specs: Sequence[ScenarioSpec], planner: Planner | None, seeds: int = 20,
@@ -516,7 +636,9 @@ def plan_table(result: PlanBenchResult):
 
 
 def plan_figure(result: PlanBenchResult, path) -> Path:
-    """PNG: median coverage / bound against strandings, one marker per scenario and method."""
+    """PNG: left, median coverage / bound against strandings, one marker per scenario and
+    method; right, coverage against budget (the area sensed before the closed-loop rule turns
+    home with a share of the usable energy, on the planning model), per scenario and method."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -524,27 +646,43 @@ def plan_figure(result: PlanBenchResult, path) -> Path:
 
     from orange_plan.atomic import save_figure
 
-    fig, ax = plt.subplots(figsize=(7.5, 5.4))
-    markers = {"lawnmower": "s", "distance": "^", "physics": "o"}
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13.0, 5.6))
+    markers = {"lawnmower": "s", "lawnmower_energy": "P", "distance": "^", "physics": "o"}
+    styles = {"lawnmower": ":", "distance": "--", "physics": "-"}
     scen = list(dict.fromkeys(r.scenario for r in result.results))
     colours = plt.get_cmap("tab10")
     for r in result.results:
-        if r.coverage_of_bound is None:
-            continue
-        share = r.strandings / max(len(r.flights), 1)
-        ax.scatter(r.coverage_of_bound * 100, share * 100, marker=markers[r.method], s=60,
-                   color=colours(scen.index(r.scenario) % 10), edgecolor="k", linewidth=0.5)
+        colour = colours(scen.index(r.scenario) % 10)
+        if r.coverage_of_bound is not None:
+            share = r.strandings / max(len(r.flights), 1)
+            ax.scatter(r.coverage_of_bound * 100, share * 100, marker=markers[r.method], s=60,
+                       color=colour, edgecolor="k", linewidth=0.5)
+        if r.budget_curve and r.method in styles and r.coverage_bound_m2 > 0:
+            shares, m2 = np.asarray(r.budget_curve, float).T
+            bx.plot(100 * shares, 100 * m2 / r.coverage_bound_m2, styles[r.method],
+                    color=colour, lw=1.6)
     for m, mk in markers.items():
         ax.scatter([], [], marker=mk, color="grey", label=METHOD_LABELS[m])
     for i, s in enumerate(scen):
         ax.scatter([], [], marker="o", color=colours(i % 10), label=s)
     ax.set_xlabel("coverage / physical bound, median [%]")
     ax.set_ylabel("flights stranded [%]")
-    ax.set_title(f"bench plan: {result.seeds} truths per scenario")
+    ax.set_title(f"flown: {result.seeds} truths per scenario")
     ax.grid(alpha=0.3)
     # Below the axes: inside, it hid the markers of the upper left corner.
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=4,
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3,
               frameon=False)
     ax.set_ylim(bottom=-1)
+    labels = {"lawnmower": "(a)/(e) lawnmower", "distance": METHOD_LABELS["distance"],
+              "physics": METHOD_LABELS["physics"]}
+    for m, ls in styles.items():
+        bx.plot([], [], ls, color="grey", label=labels[m])
+    bx.set_xlabel("energy budget / usable energy [%]")
+    bx.set_ylabel("coverage before turning home / physical bound [%]")
+    bx.set_title("coverage against budget (planning model, closed-loop rule)")
+    bx.set_xlim(0, 100)
+    bx.set_ylim(bottom=0)
+    bx.grid(alpha=0.3)
+    bx.legend(fontsize=7, loc="upper left", frameon=False)
     fig.tight_layout()
     return save_figure(fig, path)

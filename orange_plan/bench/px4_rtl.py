@@ -109,6 +109,10 @@ class ReturnRule:
         """``RTL_TIME_FACTOR * time_home + RTL_TIME_MARGIN`` [s]."""
         return self.time_factor * np.asarray(time_home_s, float) + self.time_margin_s
 
+    def decide(self, ctx, frame, route_xy, home: HomePaths, cost=None) -> ReturnDecision:
+        """Where this rule turns a simulated flight of ``route_xy`` home (``decide_return``)."""
+        return decide_return(ctx, frame, route_xy, home, self)
+
     def first_return_index(self, t_s, energy_used_J, power_avg_W, time_home_s,
                            energy_usable_J: float, time_limit_s: float | None = None):
         """First sample at which the robot turns home, or None if it never has to.
@@ -180,6 +184,83 @@ def decide_return(ctx, frame, lawn_xy, home: HomePaths, rule: ReturnRule) -> Ret
                           float(time_home[i]), float((usable - used[k]) / max(avg[k], 1e-9)))
 
 
+@dataclass(frozen=True)
+class EnergyRule:
+    """The session's energy rule, applied to a simulated flight (``bench plan`` (c) and (e)).
+
+    At each rule sample (``RULE_RATE_HZ``) the robot turns home at the first sample where
+
+        E_used(t) + k(t) E_home(x) + reserve_return(k E_home, k^2 var_home) >= E_usable
+
+    (plus the draw of two check intervals at the recent power: the robot turns before the
+    check that would fail) or, with a time limit, ``t + time_factor * T_home(x) >=
+    time_limit_s``. ``E_used`` is the
+    measured energy (recorded power, integrated as PX4 integrates current); ``E_home`` and
+    its predictive variance are the planning model's for the way home from the position
+    (``HomePaths.returns``); ``reserve_return`` is the scenario's reserve for the uncertainty
+    of the return alone (``ReserveRule.return_only_J``: the energy already spent is measured,
+    not predicted, as in ``MissionSession.decision``); ``k`` is what the run has taught so
+    far: the measured energy over the planning model's prediction for the path flown, once
+    ``learn_share`` of the usable energy is spent (before: 1), never below 1 - a cheaper
+    run does not shrink the way home.
+
+    Attributes
+    ----------
+    time_factor : the time home is taken this much longer (ramps and stops) [-]
+    learn_share : share of the usable energy spent before the run's ratio is used [-]
+    power_window_s : time constant of the recent power that sizes the look-ahead of two
+        check intervals [s]
+    """
+
+    time_factor: float = 1.05
+    learn_share: float = 0.05
+    power_window_s: float = 10.0
+
+    def decide(self, ctx, frame, route_xy, home: HomePaths, cost=None) -> ReturnDecision:
+        from orange_plan.planning.lawnmower import cumulative_energy_time
+        from orange_plan.planning.reserve import reserve_from
+
+        t = frame["t_s"].to_numpy(float)
+        power = frame["power_W"].to_numpy(float)
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        used = np.cumsum(power) * dt
+        every = max(1, round(1.0 / (RULE_RATE_HZ * dt)))
+        idx = np.arange(0, t.size, every)
+        xy = frame[["x_m", "y_m"]].to_numpy(float)
+        usable = ctx.scenario.battery.usable_J
+        back, var, back_m = home.returns(xy[idx], ctx.model)
+        ratio = np.ones(idx.size)
+        if cost is not None and idx.size > 1:
+            # the prediction for the distance driven along the route (the recorded positions
+            # are noisy: their heading changes would count as turning energy)
+            route = np.asarray(route_xy, float)
+            along = np.r_[0.0, np.cumsum(np.hypot(*np.diff(route, axis=0).T))]
+            driven = np.cumsum(frame["v_mps"].to_numpy(float))[idx] * dt
+            predicted = np.interp(driven, along, cumulative_energy_time(ctx, cost, route)[0])
+            learnt = predicted >= self.learn_share * usable
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.where(learnt, np.maximum(used[idx] / predicted, 1.0), 1.0)
+        reserve = reserve_from(ctx.scenario).return_only_J(ratio * back, ratio**2 * var, usable)
+        # the draw until the next check and the turn itself: two check intervals at the
+        # recent power (a check that only just passes may be exceeded before the next one)
+        a = dt / (self.power_window_s + dt)
+        recent = lfilter([a], [1.0, a - 1.0], np.clip(power, 0.0, None))[idx]
+        ahead = 2.0 * recent / RULE_RATE_HZ
+        fire = used[idx] + ahead + ratio * back + reserve >= usable
+        time_home = self.time_factor * back_m / (home.speed_mps * ctx.conditions.duty_cycle)
+        limit = ctx.scenario.mission.time_limit_s
+        if limit is not None:
+            fire |= t[idx] + time_home >= limit
+        if not fire.any():
+            return ReturnDecision(False, float(t[-1]), tuple(xy[-1]), _length(route_xy), 0.0,
+                                  float(limit - t[-1]) if limit is not None else math.inf)
+        i = int(np.argmax(fire))
+        k = idx[i]
+        s = locate_on_path(route_xy, xy[k], _distance_driven(frame, dt, k))
+        return ReturnDecision(True, float(t[k]), tuple(float(v) for v in xy[k]), s,
+                              float(time_home[i]), float(usable - used[k]))
+
+
 def _length(xy) -> float:
     return float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
 
@@ -223,14 +304,14 @@ SIM_ENERGY_FACTOR = 1.6
 times the usable energy: no truth within the calibration uncertainty flies that far."""
 
 
-def simulation_horizon(ctx, cost, lawn_xy) -> np.ndarray:
-    """The lawnmower cut where the planning model has used ``SIM_ENERGY_FACTOR`` x the usable
+def simulation_horizon(ctx, cost, lawn_xy, factor: float = SIM_ENERGY_FACTOR) -> np.ndarray:
+    """The lawnmower cut where the planning model has used ``factor`` x the usable
     energy (or 1.5 x the time limit plus an hour) [m]; the whole path if it ends before."""
     from orange_plan.planning.lawnmower import cumulative_energy_time
 
     lawn_xy = np.asarray(lawn_xy, float)
     energy, t = cumulative_energy_time(ctx, cost, lawn_xy)
-    over = energy >= SIM_ENERGY_FACTOR * ctx.scenario.battery.usable_J
+    over = energy >= factor * ctx.scenario.battery.usable_J
     limit = ctx.scenario.mission.time_limit_s
     if limit is not None:
         over |= t >= 1.5 * limit + 3600.0
@@ -240,9 +321,10 @@ def simulation_horizon(ctx, cost, lawn_xy) -> np.ndarray:
 
 
 def fly_with_return_rule(ctx, lawn_xy, home: HomePaths, truth, seed: int,
-                         rule: ReturnRule = ReturnRule(), cost=None,
-                         sample_rate_Hz: float = 10.0):
-    """Fly the lawnmower under ``truth`` and turn home by ``rule`` (module docstring).
+                         rule=ReturnRule(), cost=None, sample_rate_Hz: float = 10.0):
+    """Fly a route (the lawnmower, or a plan and its continuation) under ``truth`` and turn
+    home by ``rule``: PX4's ``ReturnRule`` or the session's ``EnergyRule`` (module
+    docstring).
 
     Returns
     -------
@@ -252,11 +334,14 @@ def fly_with_return_rule(ctx, lawn_xy, home: HomePaths, truth, seed: int,
     from orange_plan.sim.simulator import simulate
 
     lawn_xy = np.asarray(lawn_xy, float)
-    first = lawn_xy if cost is None else simulation_horizon(ctx, cost, lawn_xy)
-    speed = np.full(len(first), home.speed_mps)
-    sim1 = simulate(ctx, Route(first, speed, "lawnmower"), truth, seed=seed,
-                    sample_rate_Hz=sample_rate_Hz)
-    decision = decide_return(ctx, sim1.frame, first, home, rule)
+    for factor in SIM_ENERGY_FACTOR * 2.0 ** np.arange(4):
+        first = lawn_xy if cost is None else simulation_horizon(ctx, cost, lawn_xy, factor)
+        speed = np.full(len(first), home.speed_mps)
+        sim1 = simulate(ctx, Route(first, speed, "lawnmower"), truth, seed=seed,
+                        sample_rate_Hz=sample_rate_Hz)
+        decision = rule.decide(ctx, sim1.frame, first, home, cost)
+        if decision.fired or len(first) == len(lawn_xy):
+            break  # else the truth is cheaper than the horizon assumed: fly farther
     route = flown_route(lawn_xy, decision, home)
     if not decision.fired and len(first) == len(lawn_xy):
         return sim1, decision, route

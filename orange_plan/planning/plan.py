@@ -63,6 +63,9 @@ class Plan:
     waypoints_xy_m : the chosen coverage candidates' anchor points in visiting order [m]
     covered : the sensed area (start state's covered area included), shapely geometry [m^2]
     summary : SPEC §4 summary figures (``SUMMARY_KEYS``) plus extras
+    continuation_xy_m : where a robot that measures its energy in flight goes on after the
+        guaranteed extent (from the tour's turn point; it ends at home), turning home on the
+        live check; None: the tour is the whole route [m]
     """
 
     xy_m: np.ndarray
@@ -75,13 +78,15 @@ class Plan:
     waypoints_xy_m: np.ndarray
     covered: object
     summary: dict = field(default_factory=dict)
+    continuation_xy_m: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
         return len(self.xy_m)
 
     def to_geojson(self) -> dict:
-        """The SPEC §4 FeatureCollection (tour, waypoints, covered, summary)."""
+        """The SPEC §4 FeatureCollection (tour, waypoints, covered, summary; with a closed-loop
+        continuation, a LineString feature of kind ``continuation``)."""
         tour = {
             "type": "Feature",
             "properties": {"kind": "tour",
@@ -98,9 +103,14 @@ class Plan:
                 [g for g in getattr(covered, "geoms", []) if g.geom_type == "Polygon"])
         cover = {"type": "Feature", "properties": {"kind": "covered"},
                  "geometry": mapping(covered)}
+        extra = []
+        if self.continuation_xy_m is not None and len(self.continuation_xy_m) >= 2:
+            extra.append({"type": "Feature", "properties": {"kind": "continuation"},
+                          "geometry": {"type": "LineString",
+                                       "coordinates": _floats(self.continuation_xy_m)}})
         return {"type": "FeatureCollection",
                 "summary": {k: _plain(v) for k, v in self.summary.items()},
-                "features": [tour, *waypoints, cover]}
+                "features": [tour, *waypoints, cover, *extra]}
 
     def write(self, path: str | Path) -> Path:
         """Write the SPEC §4 GeoJSON atomically."""

@@ -42,7 +42,7 @@ from orange_plan.planning.lawnmower import (
     sweep_lanes,
 )
 from orange_plan.planning.paths import cut_path
-from orange_plan.planning.reach import reserve_J
+from orange_plan.planning.reserve import reserve_from
 
 RESCORE = 4
 """Best straight-joined sweeps joined round obstacles and scored again."""
@@ -130,7 +130,7 @@ def ordered_pieces(lanes, order, start_xy) -> list[np.ndarray]:
 
 
 def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
-                step_m: float, max_length_m: float = math.inf) -> RouteScore:
+                step_m: float, max_length_m: float = math.inf, reserve=None) -> RouteScore:
     """Turn points of a route under both rules (module docstring), on the planning model.
 
     Parameters
@@ -139,6 +139,7 @@ def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
     home : ``homepaths.HomePaths``; grid : the coverage grid (area sensed)
     xy : the route [m]; e_left_J : energy left to spend [J]; time_left_s : [s] (inf: none)
     step_m : the route is cut into pieces at most this long (the turn's resolution) [m]
+    reserve : the reserve rule (``planning.reserve``; default: the scenario's)
     max_length_m : no robot can drive farther (``tour.drivable_m``): the route is scored up
         to there only (a long sweep on a time-limited mission is mostly never reached) [m]
     """
@@ -147,15 +148,15 @@ def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
     xy = densify(cut_path(full, max_length_m), step_m)
     used, t = cumulative_energy_time(ctx, cost, xy)
     back, var_back, back_m = _returns_along(home, xy, ctx.model)
-    reserve = ctx.scenario.mission.reserve
+    reserve = reserve_from(ctx.scenario) if reserve is None else reserve
     e_avail = ctx.scenario.battery.usable_J
-    closed = used + back + reserve_J(reserve, e_avail, var_back)
+    closed = used + back + reserve.return_only_J(back, var_back, e_avail)
     # open loop: the whole trip's variance, the return's relative spread applied to it (the
     # exact check of the plan recomputes it from the walk's own gradient)
     total = used + back
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(back > 0, np.sqrt(var_back) / back, ctx.model.discrepancy_rel_sd)
-    opened = total + reserve_J(reserve, e_avail, (rel * total) ** 2)
+    opened = total + reserve.size_J(total, (rel * total) ** 2, e_avail)
     time_home = back_m / (home.speed_mps * max(ctx.conditions.duty_cycle, 1e-9))
     late = t + time_home > time_left_s
     s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
@@ -224,7 +225,7 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
 
     def score(xy) -> RouteScore:
         return score_route(ctx, cost, home, grid, xy, e_left_J, time_left_s, step,
-                           max_length_m)
+                           max_length_m, reach.reserve)
 
     def rank(s: RouteScore):
         return (round(s.closed_m2, 3), round(s.open_m2, 3), -s.closed_used_J)

@@ -29,6 +29,7 @@ every vertex, not on the heuristic's estimates; a plan is only returned when eve
 
 from __future__ import annotations
 
+import functools
 import time as _time
 from dataclasses import dataclass, field, replace
 
@@ -47,7 +48,7 @@ from orange_plan.planning.coverage import (
     coverage_grid,
     footprint,
 )
-from orange_plan.planning.paths import clean_polyline, evaluate_path
+from orange_plan.planning.paths import clean_polyline, cut_path, evaluate_path
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import (
     Reachability,
@@ -103,7 +104,8 @@ class TourSetup:
 def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
               n_vertices: int = 5000, seed: int = 0, progress=None,
               max_candidates: int = MAX_CANDIDATES, optimise_speed: bool = True,
-              bitstar_s: float = BITSTAR_S, bitstar_legs: int = BITSTAR_LEGS) -> Plan:
+              bitstar_s: float = BITSTAR_S, bitstar_legs: int = BITSTAR_LEGS,
+              sweeps: bool = True) -> Plan:
     """Plan an exploration tour (see the module docstring).
 
     Parameters
@@ -119,6 +121,8 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     optimise_speed : choose speeds with the CasADi optimiser (else the cruise speed)
     bitstar_s, bitstar_legs : BIT* budget per leg [s] and how many of the costliest legs it
         may refine (``refine_legs``); 0 turns refinement off
+    sweeps : also start from complete sweeps (``sweep_tour``) and keep whichever of the
+        sweep and the orienteering tour is expected to sense more in closed loop
 
     Raises
     ------
@@ -135,9 +139,137 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     planning_ctx = ctx if cost == "physics" else distance_context(ctx)
     step("building the energy roadmap")
     setup = tour_setup(planning_ctx, start, n_vertices, seed, max_candidates, step)
-    return search_tour(planning_ctx, setup, start, t0=t0, step=step,
-                       optimise_speed=optimise_speed, bitstar_s=bitstar_s,
-                       bitstar_legs=bitstar_legs, seed=seed)
+    try:
+        toured = search_tour(planning_ctx, setup, start, t0=t0, step=step,
+                             optimise_speed=optimise_speed, bitstar_s=bitstar_s,
+                             bitstar_legs=bitstar_legs, seed=seed)
+    except (InputError, PlanningError) as exc:  # a sweep may still fit where no tour does
+        if not sweeps:
+            raise
+        toured, failure = None, exc
+    swept = None
+    if sweeps:
+        step("complete sweeps at every angle and lane order")
+        swept = sweep_tour(planning_ctx, setup, start, t0=t0, optimise_speed=optimise_speed)
+    if toured is None and swept is None:
+        raise failure
+    return max((p for p in (toured, swept) if p is not None), key=expected_coverage_m2)
+
+
+def expected_coverage_m2(plan: Plan) -> float:
+    """Area a plan is expected to sense when flown in closed loop [m^2]: its continuation's
+    expected extent, else the plan's own (guaranteed) coverage."""
+    summary = plan.summary or {}
+    return float(summary.get("closed_loop_coverage_m2", summary.get("coverage_m2", 0.0)))
+
+
+def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
+               optimise_speed: bool = True, baseline: bool = True) -> Plan | None:
+    """The best complete sweep (``planning.sweeps``) as a plan, or None.
+
+    The sweep is chosen by what it senses before the closed-loop rule turns it home; its
+    prefix up to the open-loop turn is then checked exactly like any tour (``evaluate_walk``:
+    energies, returns and reserves at every vertex), its length bisected until every margin
+    is >= 0 with little slack (``_guaranteed_prefix``), and the rest of the sweep becomes
+    the plan's ``continuation_xy_m``: the route a robot that measures its energy flies on,
+    turning home on the live check. ``baseline``: the lawnmower's own route
+    (``lawnmower.plan_lawnmower``) is among the sweeps scored, so the plan senses at least
+    as much as the lawnmower under the same rule. None for a start away from home or with
+    area already sensed (a replan), or when no sweep keeps the way home.
+    """
+    from orange_plan.planning.homepaths import HomePaths
+    from orange_plan.planning.lawnmower import Detours, plan_lawnmower
+    from orange_plan.planning.sweeps import best_sweep
+
+    reach = setup.reach
+    home_xy = np.asarray(reach.home_xy_m, float)
+    at_home = start.xy_m is None or np.hypot(*(np.asarray(start.xy_m, float) - home_xy)) < 1e-6
+    if not at_home or start.covered is not None:
+        return None
+    e_left = reach.energy_available_J - reach.energy_used_J
+    time_left = _time_left_s(ctx, start)
+    home = HomePaths(reach).calibrate(functools.partial(driven_energy_J, reach.exact))
+    rm = reach.roadmap
+    detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
+    baseline_xy = plan_lawnmower(ctx, reach).xy_m if baseline else None
+    sweep = best_sweep(ctx, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
+                       1.05 * drivable_m(ctx, reach, time_left))
+    if sweep is None:
+        return None
+    checked = _guaranteed_prefix(ctx, setup, start, sweep.xy_m, sweep.score.open_s_m,
+                                 sweep.score.closed_s_m, time_left, optimise_speed)
+    if checked is None:
+        return None
+    walk_setup, plan, variance, cut_m = checked
+    plan = _finish(ctx, walk_setup, plan, plan.xy_m[1:-1], variance, start, t0)
+    closed_m2 = max(sweep.score.closed_m2, plan.summary["coverage_m2"])
+    summary = {**plan.summary,
+               "pattern": f"sweep at {sweep.angle_deg:g} deg, {sweep.order} lane order"
+               if sweep.order != "baseline" else "sweep: the lawnmower's own route",
+               "sweeps_scored": sweep.tried,
+               "guaranteed_length_m": cut_m,
+               "closed_loop_turn_m": max(sweep.score.closed_s_m, cut_m),
+               "closed_loop_coverage_m2": closed_m2,
+               "sweep_length_m": sweep.score.length_m}
+    return replace(plan, summary=summary, continuation_xy_m=route_after(sweep.xy_m, cut_m))
+
+
+PREFIX_TRIES = 9
+"""Exact checks of a sweep prefix's length (a bisection started at the scored guess)."""
+
+
+def _guaranteed_prefix(ctx, setup: TourSetup, start: StartState, route, guess_m: float,
+                       upper_m: float, time_left: float, optimise_speed: bool):
+    """The longest prefix of ``route`` whose walk home keeps every margin >= 0 and the time
+    limit, found by bisection on the exact check between 0 and ``upper_m`` (the closed-loop
+    turn: no open-loop prefix goes farther), starting at ``guess_m``: (walk setup, plan,
+    variance, length [m]) or None when no prefix fits."""
+    per_m = _per_metre(ctx.model, ctx)
+    lo, hi, best = 0.0, max(upper_m, guess_m), None
+    cut_m = guess_m if 0 < guess_m < hi else 0.5 * hi
+    for _ in range(PREFIX_TRIES):
+        if cut_m <= 0 or hi - lo <= 0.01 * hi:
+            break
+        walk = _walk_along(setup, cut_path(route, cut_m))
+        fits = False
+        if walk is not None:
+            walk_setup, ids = walk
+            plan, variance = evaluate_walk(ctx, walk_setup, ids, start, optimise_speed)
+            slack = float(plan.margin_J.min())
+            fits = slack >= 0 and float(plan.t_s[-1]) - start.time_s <= time_left
+        if fits:
+            lo, best = cut_m, (walk_setup, plan, variance, cut_m)
+            if slack < 1e-3 * per_m * max(cut_m, 1.0):
+                break
+            cut_m = min(0.5 * (lo + hi), cut_m + slack / per_m)
+        else:
+            hi = cut_m
+            cut_m = 0.5 * (lo + hi)
+    return best
+
+
+def _walk_along(setup: TourSetup, prefix_xy):
+    """``prefix_xy`` (from home) as roadmap vertices, then the roadmap's way home:
+    (setup with the extended roadmap and to-home field, walk vertex ids), or None when a
+    prefix vertex cannot be joined to the roadmap."""
+    pts = np.asarray(prefix_xy, float)[1:]
+    if len(pts) == 0:
+        return None
+    roadmap = add_vertices(setup.reach.fast, setup.roadmap, pts)
+    new = setup.roadmap.n_vertices + np.arange(len(pts))
+    to_home = energy_field(roadmap, roadmap.home_index, towards=True)
+    if not np.all(np.isfinite(to_home.energy_J[new])):
+        return None
+    back = to_home.path(int(new[-1]))
+    ids = np.r_[roadmap.home_index, new, back[1:]].astype(int)
+    return replace(setup, roadmap=roadmap, to_home=to_home), ids
+
+
+def route_after(route, s_m: float) -> np.ndarray:
+    """The part of a polyline after arclength ``s_m`` (the cut point first) [m]."""
+    route = np.asarray(route, float)
+    total = float(np.sum(np.hypot(*np.diff(route, axis=0).T)))
+    return cut_path(route[::-1], max(total - s_m, 0.0))[::-1]
 
 
 def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=None,
@@ -178,7 +310,8 @@ def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=Non
         in_time = check_time_limit(float(plan.t_s[-1]) * (1 - TIME_TOLERANCE),
                                    ctx.scenario.mission.time_limit_s).within
         if energy_short <= 0 and in_time:
-            plan = _finish(ctx, walk_setup, plan, tour, variance, start, t0)
+            waypoints = setup.candidates.anchor_xy_m[[i for i, _ in tour.nodes]]
+            plan = _finish(ctx, walk_setup, plan, waypoints, variance, start, t0)
             plan.summary["legs_refined_by_bitstar"] = refined
             return plan
         last_error = f"{max(energy_short, 0):.3g} J short, {max(overrun_s, 0):.3g} s over"
@@ -745,6 +878,12 @@ def drive(cost, xy, speed_mps) -> Driven:
     return Driven(energy, time.astype(float), grad)
 
 
+def driven_energy_J(cost, xy) -> float:
+    """Battery energy of driving a polyline at ``cost``'s speed from rest to rest, the final
+    duty-cycle wait included (``drive``) [J]."""
+    return float(drive(cost, xy, cost.speed_mps).energy_J[-1])
+
+
 def home_legs(setup: TourSetup, ids: np.ndarray) -> Driven:
     """Energy [J] and gradient of the return home from each walk vertex (time: unused, 0).
 
@@ -801,7 +940,7 @@ def _variance(reach: Reachability, energy_J, gradient, always: bool = False) -> 
 # --- summary -------------------------------------------------------------------------------
 
 
-def _finish(ctx, setup: TourSetup, plan: Plan, tour, variance, start: StartState,
+def _finish(ctx, setup: TourSetup, plan: Plan, waypoints, variance, start: StartState,
             t0: float) -> Plan:
     """Covered area, waypoints and the SPEC §4 summary."""
     reach = setup.reach
@@ -817,7 +956,7 @@ def _finish(ctx, setup: TourSetup, plan: Plan, tour, variance, start: StartState
     if ctx.scenario.mission.time_limit_s is not None:  # and never faster than v_max
         reach_m = min(reach_m, drivable_m(ctx, reach, _time_left_s(ctx, start)))
     bound = min(free_area, 2 * r * reach_m + np.pi * r**2)
-    waypoints = setup.candidates.anchor_xy_m[[i for i, _ in tour.nodes]]
+    waypoints = np.asarray(waypoints, float).reshape(-1, 2)
     summary = {
         "energy_available_J": reach.energy_available_J,
         "energy_planned_J": float(plan.energy_used_J[-1] - reach.energy_used_J),
@@ -829,7 +968,7 @@ def _finish(ctx, setup: TourSetup, plan: Plan, tour, variance, start: StartState
         "return_probability": return_probability(setup.reach, plan, variance),
         "planner_seconds": _time.perf_counter() - t0,
         "energy_used_start_J": reach.energy_used_J,
-        "candidates_visited": len(tour.nodes),
+        "candidates_visited": len(waypoints),
         "min_margin_J": float(plan.margin_J.min()),
         "reserve_rule": reach.reserve.rule_text(),
     }
