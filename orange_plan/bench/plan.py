@@ -453,8 +453,9 @@ def driven_home(reach):
 
 def closed_loop_route(plan, homing: _HomingKit):
     """(route, ways home, costs) of a plan flown in closed loop: the tour up to its turn
-    point, then its continuation (``Plan.continuation_xy_m``), at the plan's median speed;
-    a plan without a continuation is flown whole (the rule may still turn it home early)."""
+    point, then its continuation (``Plan.continuation_xy_m``), at the cruise speed its sweep
+    was scored at (else the plan's median speed); a plan without a continuation is flown
+    whole (the rule may still turn it home early)."""
     import copy
 
     xy = np.asarray(plan.xy_m, float)
@@ -465,7 +466,8 @@ def closed_loop_route(plan, homing: _HomingKit):
         if turn.size:
             route = np.vstack([xy[: int(turn[0]) + 1], np.asarray(rest, float)[1:]])
     home = copy.copy(homing.home)
-    home.speed_mps = float(np.median(plan.speed_mps))
+    home.speed_mps = float((plan.summary or {}).get("closed_loop_speed_mps",
+                                                    np.median(plan.speed_mps)))
     return route, home, homing.cost
 
 

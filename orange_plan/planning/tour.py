@@ -210,6 +210,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
                "guaranteed_length_m": cut_m,
                "closed_loop_turn_m": max(sweep.score.closed_s_m, cut_m),
                "closed_loop_coverage_m2": closed_m2,
+               "closed_loop_speed_mps": float(reach.exact.speed_mps),
                "sweep_length_m": sweep.score.length_m}
     return replace(plan, summary=summary, continuation_xy_m=route_after(sweep.xy_m, cut_m))
 
