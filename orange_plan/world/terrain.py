@@ -12,7 +12,6 @@ from orange_plan.errors import InputError, ScenarioError
 from orange_plan.physics.conditions import Conditions
 from orange_plan.world.geomap import Map, load_map
 
-
 ARC_SEGMENTS = 16
 """Segments per quarter circle of the arcs that inflation puts round corners."""
 
