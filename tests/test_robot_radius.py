@@ -148,3 +148,12 @@ def test_a_route_point_too_near_a_wall_names_the_distance(tmp_path):
     ctx = load_context(write_world(tmp_path, radius_m=0.5))
     with pytest.raises(InputError, match=r"waypoint 1 at \(10, 0.3\) m is 0.3 m from"):
         ctx.world.check_points([(5.0, 5.0), (10.0, 0.3)], "waypoint")
+
+
+def test_a_reach_goal_too_near_a_wall_is_invalid_with_its_distance(tmp_path):
+    ctx = load_context(write_world(tmp_path, radius_m=0.5))
+    reach = prepare_reach(ctx, n_vertices=150, seed=0)
+    near, clear = query_goals(reach, [(10.0, 0.3), (10.0, 5.0)])
+    assert not near.valid and near.path_xy_m is None
+    assert near.reason.startswith("0.3 m from the nearest obstacle, no-go zone or boundary edge")
+    assert clear.valid

@@ -158,24 +158,28 @@ class World:
             raise InputError(f"{what} {i} {self.clearance_problem(xy[i])}")
 
     def clearance_problem(self, xy) -> str | None:
-        """Why a point is not in free space (a phrase to follow its name), or None if it is.
-
-        A point inside the true free space but too close to its edges is named with its
-        distance to the nearest obstacle, no-go zone or boundary edge [m].
-        """
+        """Why a point is not in free space, as a phrase to follow its name ("at (x, y) m is
+        ..."), or None if it is free."""
         x, y = float(xy[0]), float(xy[1])
-        if bool(self.is_free(x, y)):
+        reason = self.why_not_free(x, y)
+        return None if reason is None else f"at ({x:g}, {y:g}) m is {reason}"
+
+    def why_not_free(self, x_m: float, y_m: float) -> str | None:
+        """None for a point in free space, else why not: outside the boundary, inside an
+        obstacle or no-go zone, or nearer an edge than the robot keeps (the distance to the
+        nearest obstacle, no-go zone or boundary edge named) [m]."""
+        if bool(self.is_free(x_m, y_m)):
             return None
-        where = f"({x:g}, {y:g}) m"
-        m, point = self.true_map, shapely.Point(x, y)
+        m = self.true_map
+        if not bool(shapely.intersects_xy(m.boundary, x_m, y_m)):
+            return "outside the boundary"
         keep_out = m.keep_out
-        inside = bool(shapely.intersects_xy(m.boundary, x, y)) and (
-            keep_out.is_empty or not bool(shapely.intersects_xy(keep_out, x, y)))
-        if not inside:
-            return f"at {where} is outside the boundary or inside an obstacle / no-go zone"
+        if not keep_out.is_empty and bool(shapely.intersects_xy(keep_out, x_m, y_m)):
+            return "inside an obstacle or no-go zone"
+        point = shapely.Point(x_m, y_m)
         distance = m.boundary.boundary.distance(point)  # its rings: exterior and holes
         if not keep_out.is_empty:
             distance = min(distance, keep_out.distance(point))
-        return (f"at {where} is {distance:.3g} m from the nearest obstacle, no-go zone or "
-                f"boundary edge, closer than the robot keeps (robot.radius_m + "
-                f"mission.clearance_m = {self.keep_away_m:g} m)")
+        return (f"{distance:.3g} m from the nearest obstacle, no-go zone or boundary edge, "
+                f"closer than the robot keeps (robot.radius_m + mission.clearance_m = "
+                f"{self.keep_away_m:g} m)")
