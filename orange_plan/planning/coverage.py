@@ -364,9 +364,10 @@ def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
     ``W = s_max - s_min``, there are ``K = ceil(W / 2r)`` lanes from ``s_min + r`` to
     ``s_max - r``, spaced ``(W - 2r) / (K - 1) <= 2r`` (one mid-line when ``W <= 2r``), so
     their footprints tile the width. Lines are clipped to the robot's free space
-    (``world.map``: the map inflated by the robot's keep-away) eroded by ``0.02 r``, split where keep-out cuts them, pieces shorter than ``0.5 r`` dropped, and
-    each piece cut into ``ceil(L / max_lane_m)`` equal parts (so a part is at least
-    ``min(0.5 r, max_lane_m / 2)`` long).
+    (``world.map``: the map inflated by the robot's keep-away) eroded by ``0.02 r``, split
+    where keep-out cuts them, pieces shorter than ``0.5 r`` dropped, and each piece cut into
+    ``ceil(L / max_lane_m)`` equal parts (so a part is at least ``min(0.5 r, max_lane_m / 2)``
+    long).
 
     Viewpoints are the points of a hexagonal lattice (spacing ``r sqrt(3)``, rows ``1.5 r``
     apart: its covering radius is exactly r) inside the eroded free space; then, up to four
