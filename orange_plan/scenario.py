@@ -63,6 +63,7 @@ NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
         "accel_max_mps2": (0.5, positive),
         "hover_W": (0.0, non_negative),
         "turn_coeff_W_s_per_rad": (0.0, non_negative),
+        "radius_m": (0.0, non_negative),
     },
     "losses": {
         "battery": (REQUIRED, _fraction_open),
@@ -88,6 +89,7 @@ NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
         "duty_cycle": (REQUIRED, _duty),
         "sensor_radius_m": (1.0, positive),
         "time_limit_s": (None, positive),
+        "clearance_m": (0.0, non_negative),
     },
     "environment": {
         "wind_speed_mps": (0.0, non_negative),
@@ -125,6 +127,9 @@ class Robot:
     accel_max_mps2: float
     hover_W: float
     turn_coeff_W_s_per_rad: float
+    radius_m: float = 0.0
+    """Radius of the disc that holds the robot's footprint [m]: every path keeps this far
+    from obstacles, no-go zones and the boundary (0: a point robot)."""
 
 
 @dataclass(frozen=True)
@@ -160,6 +165,8 @@ class Mission:
     reserve: Reserve
     home_xy_m: tuple[float, float] | None = None
     time_limit_s: float | None = None
+    clearance_m: float = 0.0
+    """Extra gap kept beyond ``robot.radius_m`` from obstacles, no-go zones and the boundary [m]."""
 
 
 @dataclass(frozen=True)
@@ -206,6 +213,12 @@ class Scenario:
     def omega(self) -> float:
         """Manoeuvring efficiency Omega [-]."""
         return self.losses.omega
+
+    @property
+    def keep_away_m(self) -> float:
+        """Distance every path keeps from obstacles, no-go zones and the boundary:
+        ``robot.radius_m + mission.clearance_m`` [m]."""
+        return self.robot.radius_m + self.mission.clearance_m
 
     @property
     def ancillary_power_W(self) -> float:

@@ -22,9 +22,10 @@ def box(x0, y0, x1, y1):
 def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surfaces=(),
                 hill=None, ramp=0.0, home=(2.0, 2.0), rated_energy_Wh=1.0,
                 reserve=None, turn=0.0, drag=0.05, name="world", time_limit_s=None,
-                wind=(0.0, 0.0), terms=()) -> Path:
+                wind=(0.0, 0.0), terms=(), radius_m=None, clearance_m=None) -> Path:
     """Write map + DEM + scenario; ``hill`` = (cx, cy, height_m, sigma_m), ``ramp`` = dz/dx,
-    ``wind`` = (speed_mps, from_deg), ``terms`` = extra model terms."""
+    ``wind`` = (speed_mps, from_deg), ``terms`` = extra model terms, ``radius_m`` and
+    ``clearance_m`` the robot's keep-away (left out: the defaults, 0)."""
     features = [
         {"type": "Feature", "properties": {"kind": "boundary"},
          "geometry": {"type": "Polygon", "coordinates": box(0, 0, width_m, height_m)}},
@@ -62,6 +63,10 @@ def write_world(folder: Path, width_m=40.0, height_m=30.0, obstacles=(), surface
         scenario["model"] = {"terms": list(terms)}
     if time_limit_s is not None:
         scenario["mission"]["time_limit_s"] = time_limit_s
+    if radius_m is not None:
+        scenario["robot"]["radius_m"] = radius_m
+    if clearance_m is not None:
+        scenario["mission"]["clearance_m"] = clearance_m
     path = folder / f"{name}.toml"
     path.write_text(tomli_w.dumps(scenario), encoding="utf-8")
     return path

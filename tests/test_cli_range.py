@@ -69,7 +69,7 @@ BAD_FILES = [
      "feature 4 has unknown kind 'hom'"),
     ("missing_scenario_file", lambda d: d / "no_such_scenario.toml", "scenario file not found"),
     ("scenario_home_in_obstacle", lambda d: write_scenario(d, set={"mission.home_xy_m": [5.0, 8.0]}),
-     "home (5.0, 8.0) lies outside the boundary or inside an obstacle"),
+     "home at (5, 8) m is inside an obstacle or no-go zone"),
     ("misspelt_map_member", lambda d: write_scenario(d, elevaton="dem.asc"),
      "unknown top-level member 'elevaton' (did you mean 'elevation'?)"),
     ("unknown_robot_kind", lambda d: write_scenario(d, set={"robot.kind": "arial"}),

@@ -366,7 +366,10 @@ def test_real_scenarios(scenario):
     assert world.is_free(c.anchor_xy_m[:, 0], c.anchor_xy_m[:, 1]).all()
     covered = np.zeros(grid.n_cells, dtype=bool)
     covered[np.concatenate(c.cells)] = True
-    assert covered.mean() >= 0.99
+    # Cells farther than r from where the robot fits (a gap under furniture narrower than
+    # the robot) cannot be sensed; every other cell must be.
+    sensable = shapely.distance(world.map.free_space, shapely.points(grid.xy_m)) <= r
+    assert covered[sensable].mean() >= 0.99
     assert abs(grid.n_cells * grid.cell_area_m2 / grid.free_area_m2 - 1) < 0.02
 
 

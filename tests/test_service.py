@@ -11,6 +11,7 @@ import re
 
 import numpy as np
 import pytest
+import shapely
 from conftest import REPO, run_cli
 from test_cli_plan import check_plan_file
 
@@ -20,6 +21,7 @@ from fastapi.testclient import TestClient
 
 from orange_plan.commands.serve import check_bind, is_loopback
 from orange_plan.errors import InputError
+from orange_plan.scenario import load_scenario
 from orange_plan.service.app import create_app
 from orange_plan.service.limits import Limits
 
@@ -67,7 +69,7 @@ def mission(db):
         r2 = c.post(f"/missions/{mid}/telemetry",
                     json={"samples": samples(10.0, 10, HOME[0] + 1.0, HOME[1])})
         upd = c.post(f"/missions/{mid}/map", json={"obstacles": [
-            {"type": "Polygon", "coordinates": [[[5, 4], [6, 4], [6, 5], [5, 5], [5, 4]]]}]})
+            {"type": "Polygon", "coordinates": [POSTED]}]})
         replan = c.post(f"/missions/{mid}/replan")
         view = {
             "created": created, "feed": [r1, r2], "map": upd, "replan": replan,
@@ -111,6 +113,29 @@ def test_telemetry_returns_decision_and_moves_robot(mission):
     assert live["trail_xy_m"][-1] == pytest.approx([HOME[0] + 2.0, HOME[1]])
     assert live["covered"]["type"] in ("Polygon", "MultiPolygon")
     assert v["decision"]["position_xy_m"] == live["position_xy_m"]
+
+
+POSTED = [[5, 4], [6, 4], [6, 5], [5, 5], [5, 4]]  # the obstacle the mission fixture posts
+
+
+def test_a_tour_after_a_map_update_keeps_the_robot_radius_from_the_new_obstacle(mission):
+    radius = load_scenario(REPO / "scenarios" / f"{SCENARIO}.toml").robot.radius_m
+    assert radius > 0
+    tour = next(f for f in mission[1]["plan"]["features"] if f["properties"]["kind"] == "tour")
+    path = shapely.LineString(tour["geometry"]["coordinates"])
+    assert path.distance(shapely.Polygon(POSTED)) >= radius - 1e-6
+
+
+def test_a_map_update_too_near_home_names_the_distance(db):
+    with client(db) as c:
+        mid = create(c)["mission_id"]
+        near = [[1.1, 0.5], [1.5, 0.5], [1.5, 1.5], [1.1, 1.5], [1.1, 0.5]]  # 0.1 m east of home
+        r = c.post(f"/missions/{mid}/map", json={"obstacles": [
+            {"type": "Polygon", "coordinates": [near]}]})
+        assert r.status_code == 422, r.text
+        detail = one_line_detail(r)  # the robot is at home: its position is named first
+        assert "at (1, 1) m is 0.1 m from the nearest obstacle" in detail, detail
+        assert c.get(f"/missions/{mid}").json()["map_updates"] == 0
 
 
 def test_map_update_and_replan_give_a_new_plan(mission):

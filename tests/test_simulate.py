@@ -108,6 +108,15 @@ def test_route_through_an_obstacle_is_refused(ctx):
         simulate(ctx, through_box)
 
 
+def test_route_scraping_an_obstacle_is_refused_by_the_robot_radius(tmp_path):
+    """The box spans x 4..6: a route along x = 3.8 passes 0.2 m from it, inside a 0.3 m robot."""
+    ctx = load_context(write_scenario(tmp_path, set={"robot.radius_m": 0.3}))
+    beside_box = Route(np.array([[3.8, 5.0], [3.8, 9.5]]), np.full(2, 0.5), "x")
+    with pytest.raises(InputError, match=r"route segment 0 leaves the free space of the map "
+                       r"or passes closer to its edges than the robot keeps \(0.3 m"):
+        simulate(ctx, beside_box)
+
+
 # --- the simulation --------------------------------------------------------------------------
 
 

@@ -52,14 +52,14 @@ def test_free_space_queries(tmp_path):
     np.testing.assert_array_equal(
         w.segments_free([[1.0, 8.0], [1.0, 1.0], [1.0, 1.0]], [[9.0, 8.0], [9.0, 1.0], [25.0, 1.0]]),
         [False, True, False])  # through the box, clear, leaving the boundary
-    with pytest.raises(InputError, match=r"goal 1 at \(5, 8\) m is outside the boundary or inside"):
+    with pytest.raises(InputError, match=r"goal 1 at \(5, 8\) m is inside an obstacle or no-go zone"):
         w.check_points([[2.0, 5.0], [5.0, 8.0]], what="goal")
 
 
 def test_scenario_home_override(tmp_path):
     w = world_from(tmp_path, set={"mission.home_xy_m": [15.0, 2.0]})
     assert w.home_xy_m == (15.0, 2.0)
-    with pytest.raises(ScenarioError, match=r"home \(5.0, 8.0\) lies outside the boundary or inside"):
+    with pytest.raises(ScenarioError, match=r"home at \(5, 8\) m is inside an obstacle or no-go zone"):
         world_from(tmp_path, set={"mission.home_xy_m": [5.0, 8.0]})
 
 

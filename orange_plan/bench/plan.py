@@ -280,7 +280,7 @@ def coverage_bound_m2(ctx) -> float:
     if sc.mission.time_limit_s is not None:
         drive_m = min(drive_m, sc.robot.v_max_mps * ctx.conditions.duty_cycle
                       * sc.mission.time_limit_s)
-    return float(min(ctx.world.map.free_space.area, 2 * r * drive_m + math.pi * r * r))
+    return float(min(ctx.world.true_map.free_space.area, 2 * r * drive_m + math.pi * r * r))
 
 
 def flight_of(ctx, sim, seed: int, bound_m2: float, turned_home_s=None) -> Flight:

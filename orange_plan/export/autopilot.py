@@ -337,7 +337,7 @@ def _fence(world, origin):
             out.append(tuple(zip(lat.tolist(), lon.tolist())))
         return out
 
-    m = world.map
+    m = world.true_map  # fences on the geometry as given: a breach means a real collision
     exclusion = [r for zone in (*m.obstacles, *m.no_go) for r in rings(zone)]
     return tuple(rings(m.boundary)), tuple(exclusion)
 

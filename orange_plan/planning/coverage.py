@@ -199,7 +199,7 @@ def coverage_grid(world, sensor_radius_m: float, max_cells: int = 400_000) -> Co
     if (isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer))
             or max_cells < 1):
         raise InputError(f"max_cells = {max_cells!r} must be an integer >= 1")
-    free = world.map.free_space
+    free = world.true_map.free_space  # the sensor sees up to the walls, not the robot's keep-away
     area_m2 = float(free.area)
     if area_m2 <= 0:
         raise InputError("the free workspace is empty (boundary entirely inside keep-out zones)")
@@ -326,7 +326,7 @@ def best_sweep_angle_deg(world, sensor_radius_m) -> float:
     Each piece is a turn the tour must make, so fewer pieces means shorter, cheaper tours.
     """
     r = _positive(sensor_radius_m, "sensor_radius_m")
-    return _best_angle(world.map.free_space, r)
+    return _best_angle(world.true_map.free_space, r)
 
 
 def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
@@ -363,10 +363,11 @@ def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
     ``n = (-sin a, cos a)``: with the free space spanning ``[s_min, s_max]``, width
     ``W = s_max - s_min``, there are ``K = ceil(W / 2r)`` lanes from ``s_min + r`` to
     ``s_max - r``, spaced ``(W - 2r) / (K - 1) <= 2r`` (one mid-line when ``W <= 2r``), so
-    their footprints tile the width. Lines are clipped to the free space eroded by
-    ``0.02 r``, split where keep-out cuts them, pieces shorter than ``0.5 r`` dropped, and
-    each piece cut into ``ceil(L / max_lane_m)`` equal parts (so a part is at least
-    ``min(0.5 r, max_lane_m / 2)`` long).
+    their footprints tile the width. Lines are clipped to the robot's free space
+    (``world.map``: the map inflated by the robot's keep-away) eroded by ``0.02 r``, split
+    where keep-out cuts them, pieces shorter than ``0.5 r`` dropped, and each piece cut into
+    ``ceil(L / max_lane_m)`` equal parts (so a part is at least ``min(0.5 r, max_lane_m / 2)``
+    long).
 
     Viewpoints are the points of a hexagonal lattice (spacing ``r sqrt(3)``, rows ``1.5 r``
     apart: its covering radius is exactly r) inside the eroded free space; then, up to four
@@ -387,7 +388,8 @@ def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
     free = grid.free_space
     # A lane may be driven either way, so angles a and a + 180 are the same sweep.
     angle = _best_angle(free, r) if angle_deg is None else _finite(angle_deg, "angle_deg") % 180.0
-    inner = free.buffer(-LANE_CLEARANCE_FRACTION * r)
+    # Lanes are spaced over what the sensor sees but driven where the robot fits.
+    inner = world.map.free_space.buffer(-LANE_CLEARANCE_FRACTION * r)
     shapely.prepare(inner)
 
     parts = []
@@ -441,7 +443,7 @@ def footprint(world, path_xy_m, sensor_radius_m):
     keep[1:] = np.any(np.diff(xy, axis=0) != 0, axis=1)  # drop repeated vertices
     xy = xy[keep]
     geom = Point(xy[0]) if len(xy) == 1 else LineString(xy)
-    return geom.buffer(r, quad_segs=32).intersection(world.map.free_space)
+    return geom.buffer(r, quad_segs=32).intersection(world.true_map.free_space)
 
 
 # --- helpers ------------------------------------------------------------------------------

@@ -349,7 +349,7 @@ def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
     home = ctx.world.home_xy_m
     r = ctx.scenario.mission.sensor_radius_m
 
-    free = ctx.world.map.free_space
+    free = ctx.world.true_map.free_space  # sensed area: the sensor sees up to the walls
     shapely.prepare(free)
 
     def score(angle, joined: bool = False):

@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import shapely
 from scipy.spatial import cKDTree
 
 from orange_plan.errors import InputError
@@ -283,12 +282,8 @@ def _reserve_of(reach: Reachability, xy, energy_J: float) -> float:
 
 
 def invalid_reason(world, x_m: float, y_m: float) -> str | None:
-    """None for a point in free space, else why not."""
-    if not bool(shapely.intersects_xy(world.map.boundary, x_m, y_m)):
-        return "outside the boundary"
-    if not bool(world.is_free(x_m, y_m)):
-        return "inside an obstacle or no-go zone"
-    return None
+    """None for a point in free space, else why not (``World.why_not_free``)."""
+    return world.why_not_free(x_m, y_m)
 
 
 def query_goals(reach: Reachability, goals_xy, names=None) -> list[GoalResult]:

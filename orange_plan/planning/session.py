@@ -585,7 +585,9 @@ class MissionSession:
         ------
         InputError
             A polygon that is malformed, invalid or empty, or that covers the robot's
-            position or home (one line, naming which polygon).
+            position or home or comes closer to them than the robot's keep-away
+            (``robot.radius_m + mission.clearance_m``) (one line, naming which polygon or
+            the distance).
         """
         new_obstacles = [_polygon(p, f"obstacles[{i}]") for i, p in enumerate(obstacles)]
         new_no_go = [_polygon(p, f"no_go[{i}]") for i, p in enumerate(no_go)]
@@ -596,10 +598,15 @@ class MissionSession:
                 if poly.intersects(shapely.Point(xy)):
                     raise InputError(f"map update: a new {name} polygon covers {what} "
                                      f"({xy[0]:g}, {xy[1]:g}) m; refused")
-        m = self.ctx.world.map
+        m = self.ctx.world.true_map
         new_map = replace(m, obstacles=(*m.obstacles, *new_obstacles),
                           no_go=(*m.no_go, *new_no_go))
-        self.ctx = replace(self.ctx, world=replace(self.ctx.world, map=new_map))
+        world = self.ctx.world.with_map(new_map)  # inflated by the robot's keep-away
+        for what, xy in where.items():  # refused only when this update brings the edge close
+            problem = world.clearance_problem(xy)
+            if problem and self.ctx.world.clearance_problem(xy) is None:
+                raise InputError(f"map update refused: {what} {problem}")
+        self.ctx = replace(self.ctx, world=world)
         self._new_batch()
         self._events.append({"map": {"obstacles": [shapely.geometry.mapping(p)
                                                    for p in new_obstacles],

@@ -335,7 +335,7 @@ def count_vertices(geometries) -> int:
 
 def map_geojson(live: LiveMission) -> dict:
     """The mission's map (boundary, obstacles, no-go, surfaces, home) plus its updates."""
-    m = live.ctx.world.map  # the session's map: the scenario's plus the updates, in order
+    m = live.ctx.world.true_map  # the session's map: the scenario's plus the updates, in order
     n_obstacles = sum(kind == "obstacle" for kind, _ in live.map_updates)
     n_no_go = len(live.map_updates) - n_obstacles
     feats = [_feature("boundary", m.boundary)]

@@ -156,7 +156,9 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     free = world.segments_free(route.xy_m[:-1], route.xy_m[1:])
     if not free.all():
         i = int(np.argmin(free))
-        raise InputError(f"route segment {i} leaves the free space of the map")
+        near = (f" or passes closer to its edges than the robot keeps ({world.keep_away_m:g} m: "
+                "robot.radius_m + mission.clearance_m)" if world.keep_away_m > 0 else "")
+        raise InputError(f"route segment {i} leaves the free space of the map{near}")
     route = route.with_default_speed(ctx.cruise_speed_mps)
     lap = route.lap() if to_depletion else route
     rng = np.random.default_rng(seed)

@@ -79,7 +79,7 @@ def draw_map(ax, world, *, home: bool = True, shading: bool = True,
     if surfaces not in ("fill", "outline"):
         raise ValueError(f"surfaces must be 'fill' or 'outline', not {surfaces!r}")
     fill = surfaces == "fill"
-    m = getattr(world, "map", world)
+    m = getattr(world, "true_map", world)  # the map as given, not inflated by the keep-away
     if hasattr(world, "map"):
         default_name, default_crr = world.default_surface_name, world.default_crr
         home_xy = world.home_xy_m
@@ -281,7 +281,7 @@ def plot_plan(world, plan, path: str | Path, title: str) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    layout = _layout(plt, world.map.boundary.bounds)
+    layout = _layout(plt, world.true_map.boundary.bounds)
     try:
         _draw_plan_figure(layout, world, plan, xy, arrays, title)
         with atomic_path(path, suffix=".png") as tmp:
@@ -341,7 +341,7 @@ def _draw_plan_figure(layout: _Layout, world, plan, xy, a: dict, title: str) -> 
 
     covered = plan.covered
     if covered is not None and not covered.is_empty:
-        xmin, ymin, xmax, ymax = world.map.boundary.bounds
+        xmin, ymin, xmax, ymax = world.true_map.boundary.bounds
         # Simplify far below a pixel so huge buffered tours draw fast.
         fine = shapely.simplify(covered, 2e-4 * max(xmax - xmin, ymax - ymin))
         ax.add_patch(_patch(fine, facecolor=(*to_rgb(COVERED_COLOUR), 0.3),
@@ -458,7 +458,7 @@ def _headline(world, plan, a: dict) -> str:
     cov = s.get("coverage_m2", covered.area if covered is not None else 0.0)
     frac = s.get("coverage_fraction")
     if frac is None:
-        free = world.map.free_space.area
+        free = world.true_map.free_space.area
         frac = cov / free if free > 0 else float("nan")
     planned = s.get("energy_planned_J", a["energy_used_J"][-1] if len(a["energy_used_J"])
                     else float("nan"))

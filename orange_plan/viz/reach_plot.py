@@ -14,7 +14,7 @@ MAX_FIELD_POINTS = 40_000
 
 def field_grid(world, max_points: int = MAX_FIELD_POINTS):
     """Regular grid of points over the boundary box: (xs, ys, points (ny*nx, 2))."""
-    xmin, ymin, xmax, ymax = world.map.boundary.bounds
+    xmin, ymin, xmax, ymax = world.true_map.boundary.bounds
     cell = np.sqrt((xmax - xmin) * (ymax - ymin) / max_points)
     xs = np.arange(xmin + cell / 2, xmax, cell)
     ys = np.arange(ymin + cell / 2, ymax, cell)
@@ -80,10 +80,10 @@ def reach_figure(reach, field, xs, ys, goals, title: str):
         colour = palette((names.index(s.name) + 3) % 10)
         for poly in getattr(s.polygon, "geoms", [s.polygon]):
             ax.plot(*poly.exterior.xy, color=colour, lw=1.0, zorder=3)
-    for zone in (*world.map.obstacles, *world.map.no_go):
+    for zone in (*world.true_map.obstacles, *world.true_map.no_go):  # as given, not inflated
         for poly in getattr(zone, "geoms", [zone]):
             ax.fill(*poly.exterior.xy, color="0.25", zorder=4)
-    ax.plot(*world.map.boundary.exterior.xy, color="black", lw=1.5, zorder=4)
+    ax.plot(*world.true_map.boundary.exterior.xy, color="black", lw=1.5, zorder=4)
 
     hx, hy = reach.home_xy_m
     ax.plot(hx, hy, marker="*", ms=18, color="gold", mec="black", zorder=6)
@@ -110,7 +110,7 @@ def reach_figure(reach, field, xs, ys, goals, title: str):
                            label="goal: infeasible"),
                     Line2D([], [], marker="x", color="black", ls="", label="goal: invalid")]
     fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=8, frameon=False)
-    bx0, by0, bx1, by1 = world.map.boundary.bounds
+    bx0, by0, bx1, by1 = world.true_map.boundary.bounds
     gx_all = [bx0, bx1, *(g.x_m for g in goals)]
     gy_all = [by0, by1, *(g.y_m for g in goals)]
     pad = 0.02 * max(bx1 - bx0, by1 - by0)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 import shapely
@@ -11,6 +12,34 @@ from orange_plan.errors import InputError, ScenarioError
 from orange_plan.physics.conditions import Conditions
 from orange_plan.world.geomap import Map, load_map
 
+ARC_SEGMENTS = 16
+"""Segments per quarter circle of the arcs that inflation puts round corners."""
+
+ARC_STRETCH = 1.0 / math.cos(math.pi / (4 * ARC_SEGMENTS))
+"""Inflation grows by ``keep_away_m * ARC_STRETCH`` (0.12 % more): a buffer's arcs are chords
+of the true circle, whose midpoints fall ``1 - cos(pi / 4 q)`` of the radius inside it;
+stretched, the chords lie on or outside the circle, so every point of the inflated free space
+keeps at least ``keep_away_m`` from the map's geometry."""
+
+
+def inflate_map(m: Map, keep_away_m: float) -> Map:
+    """The free space of a disc robot: the map with obstacles and no-go zones grown and the
+    boundary shrunk by ``keep_away_m`` [m] (surfaces, elevation and home unchanged).
+
+    Planning with the inflated map as a point robot keeps the disc's edge off every wall:
+    every path, return, reach answer and collision check inherits it. ``keep_away_m = 0``
+    returns ``m`` itself.
+    """
+    if keep_away_m <= 0:
+        return m
+    grow = keep_away_m * ARC_STRETCH
+    return replace(
+        m,
+        boundary=m.boundary.buffer(-grow, quad_segs=ARC_SEGMENTS),
+        obstacles=tuple(o.buffer(grow, quad_segs=ARC_SEGMENTS) for o in m.obstacles),
+        no_go=tuple(z.buffer(grow, quad_segs=ARC_SEGMENTS) for z in m.no_go),
+    )
+
 
 @dataclass(frozen=True)
 class World:
@@ -18,13 +47,17 @@ class World:
 
     Attributes
     ----------
-    map : the validated Map
+    map : the map the robot plans in: ``true_map`` inflated by ``keep_away_m``
+        (``inflate_map``); every free-space and collision query reads it
     default_crr : rolling coefficient where no surface polygon applies [-]
     default_surface_name : its name (the map's default_surface, else "default")
     wind_xy_mps : the scenario's ``Conditions`` wind (or water current) (x east, y north)
         [m/s], kept only as the fallback wind of recordings without wind columns
         (``telemetry.state``); planning and simulation read ``Context.conditions``
     home_xy_m : start and return point [m]
+    true_map : the map as given (plus map updates): what the sensor sees (coverage counts
+        it up to the walls) and what plots draw; None: ``map``
+    keep_away_m : the scenario's ``robot.radius_m + mission.clearance_m`` [m]
     """
 
     map: Map
@@ -32,6 +65,12 @@ class World:
     default_surface_name: str
     wind_xy_mps: tuple[float, float]
     home_xy_m: tuple[float, float]
+    true_map: Map | None = None
+    keep_away_m: float = 0.0
+
+    def __post_init__(self):
+        if self.true_map is None:
+            object.__setattr__(self, "true_map", self.map)
 
     @classmethod
     def from_scenario(cls, scenario, map_: Map | None = None) -> World:
@@ -47,13 +86,23 @@ class World:
                 f"{scenario.path}: no home: set mission.home_xy_m or add a 'home' Point to the map"
             )
         wind = Conditions.of(scenario).wind_xy_mps
-        world = cls(m, default_crr, default_name, wind, tuple(home))
-        if not bool(world.is_free(*home)):
+        keep_away = scenario.keep_away_m
+        world = cls(m, default_crr, default_name, wind, tuple(home), keep_away_m=keep_away)
+        world = world.with_map(m)
+        if world.map.boundary.is_empty or world.map.free_space.is_empty:
             raise ScenarioError(
-                f"{scenario.path}: home {tuple(home)} lies outside the boundary or inside an "
-                "obstacle / no-go zone"
+                f"{scenario.path}: robot.radius_m + mission.clearance_m = {keep_away:g} m leaves "
+                f"no room to move: every point of the map is closer than that to its boundary, "
+                "an obstacle or a no-go zone"
             )
+        problem = world.clearance_problem(home)
+        if problem:
+            raise ScenarioError(f"{scenario.path}: home {problem}")
         return world
+
+    def with_map(self, true_map: Map) -> World:
+        """This world on another map (a map update), inflated by the same ``keep_away_m``."""
+        return replace(self, map=inflate_map(true_map, self.keep_away_m), true_map=true_map)
 
     # --- point queries -----------------------------------------------------------------
     def surface_code_at(self, x_m, y_m) -> np.ndarray:
@@ -81,7 +130,8 @@ class World:
         return self.map.elevation.elevation_at(x, y)
 
     def is_free(self, x_m, y_m) -> np.ndarray:
-        """True where a point is inside the boundary and outside every keep-out zone."""
+        """True where a point is inside the boundary and outside every keep-out zone (of the
+        inflated ``map``: at least ``keep_away_m`` from the true ones)."""
         x, y = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
         free = shapely.intersects_xy(self.map.boundary, x, y)
         keep_out = self.map.keep_out
@@ -105,7 +155,31 @@ class World:
         ok = self.is_free(xy[:, 0], xy[:, 1])
         if not np.all(ok):
             i = int(np.flatnonzero(~ok)[0])
-            raise InputError(
-                f"{what} {i} at ({xy[i, 0]:g}, {xy[i, 1]:g}) m is outside the boundary or inside "
-                "an obstacle / no-go zone"
-            )
+            raise InputError(f"{what} {i} {self.clearance_problem(xy[i])}")
+
+    def clearance_problem(self, xy) -> str | None:
+        """Why a point is not in free space, as a phrase to follow its name ("at (x, y) m is
+        ..."), or None if it is free."""
+        x, y = float(xy[0]), float(xy[1])
+        reason = self.why_not_free(x, y)
+        return None if reason is None else f"at ({x:g}, {y:g}) m is {reason}"
+
+    def why_not_free(self, x_m: float, y_m: float) -> str | None:
+        """None for a point in free space, else why not: outside the boundary, inside an
+        obstacle or no-go zone, or nearer an edge than the robot keeps (the distance to the
+        nearest obstacle, no-go zone or boundary edge named) [m]."""
+        if bool(self.is_free(x_m, y_m)):
+            return None
+        m = self.true_map
+        if not bool(shapely.intersects_xy(m.boundary, x_m, y_m)):
+            return "outside the boundary"
+        keep_out = m.keep_out
+        if not keep_out.is_empty and bool(shapely.intersects_xy(keep_out, x_m, y_m)):
+            return "inside an obstacle or no-go zone"
+        point = shapely.Point(x_m, y_m)
+        distance = m.boundary.boundary.distance(point)  # its rings: exterior and holes
+        if not keep_out.is_empty:
+            distance = min(distance, keep_out.distance(point))
+        return (f"{distance:.3g} m from the nearest obstacle, no-go zone or boundary edge, "
+                f"closer than the robot keeps (robot.radius_m + mission.clearance_m = "
+                f"{self.keep_away_m:g} m)")
