@@ -105,7 +105,29 @@ class World:
         ok = self.is_free(xy[:, 0], xy[:, 1])
         if not np.all(ok):
             i = int(np.flatnonzero(~ok)[0])
+            count = f" ({np.count_nonzero(~ok)} of {len(xy)} are)" if len(xy) > 1 else ""
             raise InputError(
                 f"{what} {i} at ({xy[i, 0]:g}, {xy[i, 1]:g}) m is outside the boundary or inside "
-                "an obstacle / no-go zone"
+                f"an obstacle / no-go zone{count}"
             )
+
+    def check_route(self, xy, source: str = "route") -> None:
+        """Raise InputError unless a polyline lies in free space: every vertex and every
+        straight segment between them (a route made on another map, or in another frame,
+        is refused before anything drives or flies it).
+
+        Parameters
+        ----------
+        xy : route vertices (n, 2) [m]
+        source : the route's file, for the message
+        """
+        xy = np.atleast_2d(np.asarray(xy, float))
+        try:
+            self.check_points(xy, "route vertex")
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}; was the route made on this scenario's "
+                             "map?") from None
+        free = self.segments_free(xy[:-1], xy[1:])
+        if not free.all():
+            i = int(np.argmin(free))
+            raise InputError(f"{source}: route segment {i} leaves the free space of the map")
