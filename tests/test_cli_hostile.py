@@ -213,3 +213,28 @@ def test_calibrate_refuses_a_recording_far_off_the_map(files, tmp_path):
     frame.to_csv(far, index=False)
     code, _, err = run_cli("calibrate", far, "--scenario", BOX)
     assert code == 2 and "outside the map" in one_line(err)
+
+
+@needs_proc
+@pytest.mark.parametrize("args, option, work", [
+    (["bench", "plan", "--quick", "--png", UNWRITABLE / "b.png"], "--png",
+     "orange_plan.bench.plan:run_plan_bench"),
+    (["bench", "plan", "--quick", "--out", UNWRITABLE / "b.json"], "--out",
+     "orange_plan.bench.plan:run_plan_bench"),
+    (["bench", "mission", "--quick", "--png", UNWRITABLE / "m.png"], "--png",
+     "orange_plan.bench.mission:run_mission_study"),
+    (["bench", "mission", "--quick", "--out", UNWRITABLE / "m.json"], "--out",
+     "orange_plan.bench.mission:run_mission_study"),
+    (["report", "paper", "-o", UNWRITABLE / "report"], "-o", "orange_plan.report.paper:generate"),
+])
+def test_long_commands_check_their_outputs_before_the_work(monkeypatch, args, option, work):
+    import importlib
+
+    module, name = work.split(":")
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("worked before checking the output")
+
+    monkeypatch.setattr(importlib.import_module(module), name, must_not_run)
+    code, _, err = run_cli(*args)
+    assert code == 2 and option in one_line(err)
