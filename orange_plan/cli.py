@@ -21,8 +21,10 @@ from typer.core import TyperGroup
 
 try:  # typer >= 0.20 carries its own copy of click
     from typer._click import exceptions as click_exc
+    from typer._click.globals import get_current_context
 except ImportError:  # pragma: no cover - older typer runs on click itself
     from click import exceptions as click_exc
+    from click.globals import get_current_context
 
 from orange_plan.errors import InputError, OrangeError
 
@@ -95,6 +97,65 @@ def parse_xy(text: str, option: str) -> tuple[float, float]:
     return x, y
 
 
+SEED_MAX = 2**32 - 1
+"""Largest seed: the random generators behind --seed (numpy's legacy seeding, the roadmap
+sampler) take unsigned 32-bit seeds."""
+INT_MAX = 2**63 - 1
+"""Largest integer any count option may hold (a 64-bit array index)."""
+MAX_TIME_S = 1e9
+"""Longest mission time an option may give [s] (about 32 years: beyond any battery's life,
+so a larger number is a slip of units, not a mission)."""
+MAX_GRADE_WINDOW_M = 1e5
+"""Longest elevation smoothing window [m] (100 km: longer than any map's drive)."""
+
+
+def check_numbers(values: dict) -> None:
+    """Refuse, naming the option, a number no command can use: a float option that is NaN or
+    infinite, a seed outside 0..SEED_MAX, an integer beyond 64 bits.
+
+    Parameters
+    ----------
+    values : the command's keyword arguments (parameter name -> parsed value)
+
+    Raises
+    ------
+    InputError
+        The first such value.
+    """
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InputError(f"{option_name(name)} must be a finite number, got {value}")
+        if name == "seed" and not 0 <= value <= SEED_MAX:
+            raise InputError(f"{option_name(name)} must be a whole number from 0 to "
+                             f"{SEED_MAX}, got {value}")
+        if isinstance(value, int) and abs(value) > INT_MAX:
+            raise InputError(f"{option_name(name)} = {value} is too large")
+
+
+def option_name(param: str) -> str:
+    """The option that sets the command parameter ``param`` (``time_s`` -> ``--time-s``)."""
+    ctx = get_current_context(silent=True)
+    for p in getattr(getattr(ctx, "command", None), "params", ()):
+        if p.name == param and p.opts:
+            return max(p.opts, key=len)
+    return "--" + param.replace("_", "-")
+
+
+def check_range(value: float | None, option: str, low: float = 0.0, high: float = math.inf,
+                low_open: bool = True) -> None:
+    """Refuse ``value`` (when given) outside ``(low, high]`` (``[low, high]`` with
+    ``low_open=False``), naming the option; NaN and infinities are refused too."""
+    if value is None:
+        return
+    above = value > low if low_open else value >= low
+    if not (math.isfinite(value) and above and value <= high):
+        bound = f"> {low:g}" if low_open else f">= {low:g}"
+        limit = "" if high == math.inf else f" and <= {high:g}"
+        raise InputError(f"{option} must be a number {bound}{limit}, got {value}")
+
+
 def default_scenario() -> Path:
     """The hilly example shipped with the package (scenarios/kiwibot_campus.toml)."""
     from orange_plan.examples import examples_dir
@@ -116,6 +177,9 @@ def fail(message: str, code: int) -> None:
 def handles_errors(fn):
     """Turn InputError into exit 2 and other failures into exit 1, one line each.
 
+    Before the command runs, numbers no command can use (NaN, infinities, seeds out of
+    range) are refused naming their option (``check_numbers``).
+
     Library warnings become one ``orange-plan: warning: ...`` line each instead of a raw
     traceback-style block. With ``--json``, whatever a library prints on stdout goes to
     stderr, so stdout holds the JSON object alone.
@@ -125,6 +189,7 @@ def handles_errors(fn):
     def wrapper(*args, **kwargs):
         json_mode = bool(kwargs.get("as_json"))
         try:
+            check_numbers(kwargs)
             with _one_line_warnings(), _stdout_for_json(json_mode):
                 return fn(*args, **kwargs)
         except InputError as exc:

@@ -50,9 +50,23 @@ def check_output(path: str | Path, option: str, suffixes: Iterable[str] = (),
         raise InputError(f"{option} {path}: cannot create it: {folder} is not a folder")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise InputError(f"{option} {path}: cannot write in folder {folder} (permission denied)")
+    _probe_write(folder, path, option)
     if path.exists() and not os.access(path, os.W_OK):
         raise InputError(f"{option} {path}: the existing file is read-only")
     return path
+
+
+def _probe_write(folder: Path, path: Path, option: str) -> None:
+    """Create (and drop) a nameless file in ``folder``: permission bits do not tell everything
+    (a superuser passes ``os.access`` on read-only mounts and pseudo file systems like /proc)."""
+    import tempfile
+
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise InputError(f"{option} {path}: cannot write in folder {folder} "
+                         f"({exc.strerror or exc})") from None
 
 
 def _same_file(a: Path, b: Path) -> bool:

@@ -65,7 +65,7 @@ def test_png_and_human_output(scenario, goals_csv, tmp_path):
     (["--from", "12,10"], "--from (12, 10) m is outside the boundary or inside an obstacle"),
     (["--from", "abc"], "--from must be X,Y"),
     (["--energy-used-J", "-5"], "--energy-used-J = -5 must be in"),
-    (["--time-used-s", "-5"], "--time-used-s = -5 must be a finite time >= 0 s"),
+    (["--time-used-s", "-5"], "--time-used-s must be a number >= 0"),
     (["--goals", "missing.csv"], "goals file not found"),
     (["--png", "x.jpg"], "must end in .png"),
 ])

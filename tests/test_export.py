@@ -231,3 +231,43 @@ def test_bad_origin_is_refused(tmp_path):
                                                                   alt_m=0.0))
     with pytest.raises(InputError, match="lat_deg"):
         load_context(scenario)
+
+
+def test_plan_made_on_another_map_is_refused(planned, tmp_path):
+    """The tour of a 30 m x 20 m world, exported with a map whose free space it leaves."""
+    _, plan_path, _, _ = planned
+    other = with_origin(write_world(tmp_path, width_m=30.0, height_m=20.0,
+                                    obstacles=[(4, 0.5, 26, 19.5)], rated_energy_Wh=0.6))
+    code, _, stderr = run_cli("export", plan_path, "--scenario", other, "-o", tmp_path / "m.plan")
+    assert code == 2 and len(stderr.strip().splitlines()) == 1
+    assert "route vertex" in stderr and "this scenario's map" in stderr
+    assert not (tmp_path / "m.plan").exists()
+
+
+@pytest.mark.parametrize("name, text", [
+    ("rec.csv", "t_s,power_W,x_m,y_m\n0,5,2,2\n1,5,10,2\n2,5,2,2\n"),  # a recording
+    ("route.csv", "x_m,y_m,speed_mps\n2,2,1\n10,2,1\n2,2,1\n"),  # a route, not a plan
+])
+def test_only_a_plan_geojson_is_exported(planned, tmp_path, name, text):
+    scenario, _, _, _ = planned
+    (tmp_path / name).write_text(text, encoding="utf-8")
+    code, _, stderr = run_cli("export", tmp_path / name, "--scenario", scenario, "-o",
+                              tmp_path / "m.plan")
+    assert code == 2 and "plan GeoJSON" in stderr and len(stderr.strip().splitlines()) == 1
+
+
+def test_waypoints_and_plan_leave_the_yaw_alike(planned, tmp_path):
+    """Keep the heading in both files: null in the .plan, NaN in the WPL (0 = face north)."""
+    scenario, plan_path, _, _ = planned
+    files = {fmt: tmp_path / name for fmt, name in (("qgc", "m.plan"),
+                                                    ("mavlink", "m.waypoints"))}
+    for fmt, path in files.items():
+        code, _, stderr = run_cli("export", plan_path, "--scenario", scenario, "--format", fmt,
+                                  "-o", path)
+        assert code == 0, stderr
+    (_, qgc), (_, wpl) = read_items(files["qgc"]), read_items(files["mavlink"])
+    assert [it.command for it in qgc] == [it.command for it in wpl]
+    for a, b in zip(qgc, wpl):
+        assert np.array_equal(np.isnan(a.params), np.isnan(b.params))
+    yaws = [it.params[3] for it in wpl if it.command == NAV_WAYPOINT]
+    assert yaws and all(math.isnan(y) for y in yaws)

@@ -94,6 +94,16 @@ def bench_table(r) -> Table:
 DEFAULT_PLAN_SCENARIOS = "kiwibot_campus,ar_drone_wind,marine_survey,husky_a200,random"
 
 
+def check_outputs(png: Path | None, out_file: Path | None) -> None:
+    """A benchmark's --png and --out, checked before its minutes of work."""
+    from orange_plan.paths import check_output
+
+    if png is not None:
+        check_output(png, "--png", [".png"])
+    if out_file is not None:
+        check_output(out_file, "--out", [".json"], inputs=[png])
+
+
 @bench_app.command("plan")
 @handles_errors
 def bench_plan_cmd(
@@ -135,8 +145,7 @@ def bench_plan_cmd(
     )
 
     seeds = seeds if seeds is not None else (2 if quick else 20)
-    if png is not None and png.suffix.lower() != ".png":
-        raise InputError(f"--png {png}: the file name must end in .png")
+    check_outputs(png, out_file)
     if family_size < 1:
         raise InputError(f"--family-size = {family_size} must be >= 1")
     names = [s.strip() for s in scenarios.split(",") if s.strip()]
@@ -248,8 +257,7 @@ def bench_mission_cmd(
     from orange_plan.progress import bar
 
     missions = missions if missions is not None else (3 if quick else 500)
-    if png is not None and png.suffix.lower() != ".png":
-        raise InputError(f"--png {png}: the file name must end in .png")
+    check_outputs(png, out_file)
     kwargs = {"n_vertices": 400 if quick else vertices}
     if quick:
         kwargs |= {"width_m": 80.0, "height_m": 60.0}

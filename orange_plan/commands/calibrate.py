@@ -9,10 +9,12 @@ import typer
 from rich.table import Table
 
 from orange_plan.cli import (
+    MAX_GRADE_WINDOW_M,
     RECORDING_HELP,
     SCENARIO_HELP,
     JsonOpt,
     app,
+    check_range,
     err,
     handles_errors,
     out,
@@ -51,11 +53,15 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
     from orange_plan.model_builder import physical_values
     from orange_plan.paths import check_output
     from orange_plan.telemetry.recording import load_recording
+    from orange_plan.telemetry.replay import check_positions_on_map
 
+    check_range(grade_window_m, "--grade-window-m", high=MAX_GRADE_WINDOW_M)
     if output is not None:
         check_output(output, "-o", [".toml"], inputs=[*recordings, scenario])
     ctx = load_context(scenario)
     recs = [load_recording(p) for p in recordings]
+    for rec in recs:
+        check_positions_on_map(rec, ctx.world)
     cal = Calibrator(terms=_split(terms), fixed=_split(fixed) or (), use_prior=not no_prior,
                      grade_window_m=grade_window_m).fit(recs, ctx)
     report = {

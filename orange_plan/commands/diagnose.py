@@ -9,10 +9,12 @@ import typer
 from rich.table import Table
 
 from orange_plan.cli import (
+    MAX_GRADE_WINDOW_M,
     RECORDING_HELP,
     SCENARIO_HELP,
     JsonOpt,
     app,
+    check_range,
     handles_errors,
     out,
     print_json,
@@ -45,6 +47,7 @@ def diagnose_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = N
     from orange_plan.telemetry.recording import load_recording
     from orange_plan.telemetry.replay import check_positions_on_map
 
+    check_range(grade_window_m, "--grade-window-m", high=MAX_GRADE_WINDOW_M)
     if png is not None:
         check_output(png, "--png", [".png"], inputs=[recording, scenario])
     if output is not None:

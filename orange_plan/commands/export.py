@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.errors import InputError
 
 
 @app.command("export")
@@ -33,14 +34,20 @@ def export_cmd(
     speed changes as DO_CHANGE_SPEED, the end as return-to-launch."""
     from orange_plan.context import load_context
     from orange_plan.export.autopilot import build_mission, check_extension, write_mission
-    from orange_plan.sim.route import load_route
+    from orange_plan.paths import check_output
+    from orange_plan.sim.route import PLAN_SUFFIXES, load_route
 
     check_extension(output, fmt)
+    check_output(output, "-o", inputs=[plan, scenario])
+    if plan.suffix.lower() not in PLAN_SUFFIXES:
+        raise InputError(f"{plan}: export takes a plan GeoJSON written by 'orange-plan plan' "
+                         f"(a .geojson with the tour), not a {plan.suffix or 'suffix-less'} "
+                         "file such as a route or recording CSV")
     route = load_route(plan)
     ctx = load_context(scenario)
     mission = build_mission(ctx.world, ctx.scenario.robot.kind, route.xy_m,
                             route.with_default_speed(ctx.cruise_speed_mps).speed_mps,
-                            altitude_m, firmware)
+                            altitude_m, firmware, source=str(plan))
     write_mission(mission, output, fmt)
     report = {"plan": str(plan), "output": str(output), "format": fmt,
               "tour_vertices": len(route.xy_m), "waypoints": len(mission.waypoints_xy_m),

@@ -7,8 +7,17 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, parse_xy, print_json
-from orange_plan.errors import InputError
+from orange_plan.cli import (
+    MAX_TIME_S,
+    JsonOpt,
+    ScenarioArg,
+    app,
+    check_range,
+    handles_errors,
+    out,
+    parse_xy,
+    print_json,
+)
 from orange_plan.paths import check_output
 from orange_plan.progress import stages, wanted
 
@@ -45,8 +54,8 @@ def plan_cmd(
     if png is not None:
         check_output(png, "--png", [".png"], inputs=[scenario, output])
     start_xy = parse_xy(from_xy, "--from") if from_xy is not None else None
-    if not (energy_used_J >= 0 and time_s >= 0):
-        raise InputError("--energy-used-J and --time-s must be >= 0")
+    check_range(energy_used_J, "--energy-used-J", low_open=False)
+    check_range(time_s, "--time-s", high=MAX_TIME_S, low_open=False)
     with stages(wanted(as_json)) as step:
         step("loading scenario")
         ctx = load_context(scenario)

@@ -8,7 +8,17 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, parse_xy, print_json
+from orange_plan.cli import (
+    MAX_TIME_S,
+    JsonOpt,
+    ScenarioArg,
+    app,
+    check_range,
+    handles_errors,
+    out,
+    parse_xy,
+    print_json,
+)
 from orange_plan.progress import stages, wanted
 
 
@@ -36,6 +46,7 @@ def reach_cmd(
     from orange_plan.planning.goals import load_goals
     from orange_plan.planning.reach import home_status, prepare_reach, query_goals, query_points
 
+    check_range(time_used_s, "--time-used-s", high=MAX_TIME_S, low_open=False)
     start = parse_xy(from_xy, "--from") if from_xy is not None else None
     goal_set = load_goals(goals) if goals is not None else None
     if png is not None:

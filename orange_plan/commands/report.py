@@ -11,6 +11,7 @@ from rich.table import Table
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
 from orange_plan.commands.bench_identify import DEFAULT_DATA, DataOpt, ScenariosOpt, _scenarios
 from orange_plan.errors import InputError
+from orange_plan.paths import check_output
 from orange_plan.progress import bar, wanted
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports regenerated from one command.")
@@ -39,6 +40,7 @@ def paper_cmd(
         raise InputError(f"--trials = {trials} must be >= 2 (a standard deviation needs two)")
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"-o {out_dir}: exists and is not a folder")
+    check_output(out_dir / "report.md", "-o")  # the folder can be made and written
     if data is not None and not data.is_dir():
         raise InputError(f"--data {data}: folder not found")
     data = data if data is not None else (DEFAULT_DATA if DEFAULT_DATA.is_dir() else None)

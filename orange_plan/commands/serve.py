@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import ipaddress
 import os
 import socket
@@ -37,6 +38,7 @@ def serve_cmd(
     them. With ORANGE_PLAN_TOKEN set, every /missions... request needs that bearer token."""
     import uvicorn
 
+    from orange_plan.paths import check_output
     from orange_plan.service.app import TOKEN_ENV, create_app
     from orange_plan.service.limits import Limits
 
@@ -45,10 +47,41 @@ def serve_cmd(
     for folder, what in ((scenarios, "--scenarios"), (maps, "--maps")):
         if folder is not None and not folder.is_dir():
             raise InputError(f"{what} {folder}: not a folder")
+    check_output(db, "--db")
+    check_port_free(host, port)
     service = create_app(db, token=token, scenarios_dir=scenarios, maps_dir=maps,
                          limits=Limits(max_body_bytes=max_body_bytes))
     uvicorn.run(service, host=host, port=port, log_level="info",
                 h11_max_incomplete_event_size=64 * 1024)
+
+
+def check_port_free(host: str, port: int) -> None:
+    """Bind ``host:port`` once and let go, so a port in use (or an address this machine does
+    not have) is one line here instead of the server's multi-line start-up failure.
+
+    The test socket sets SO_REUSEADDR as the server's own does: a port only lingering in
+    TIME_WAIT after a previous run is free for both.
+
+    Raises
+    ------
+    InputError
+        The host does not resolve, or binding any of its addresses fails.
+    """
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as exc:
+        raise InputError(f"--host {host}: cannot resolve it ({exc})") from None
+    for family, kind, proto, _, address in infos:
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                probe.bind(address)
+            except OSError as exc:
+                busy = exc.errno == errno.EADDRINUSE
+                raise InputError(
+                    f"--port {port}: already in use on {host} (another server runs there; "
+                    "pick another --port)" if busy else
+                    f"--host {host} --port {port}: cannot bind ({exc.strerror or exc})") from None
 
 
 def is_loopback(host: str) -> bool:

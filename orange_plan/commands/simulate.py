@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, ScenarioArg, app, handles_errors, out, print_json
+from orange_plan.cli import (
+    MAX_TIME_S,
+    JsonOpt,
+    ScenarioArg,
+    app,
+    check_range,
+    handles_errors,
+    out,
+    print_json,
+)
 
 PlanArg = Annotated[Path, typer.Argument(
     help="Plan GeoJSON (its LineString feature of kind 'tour', with per-vertex speed_mps) or "
@@ -40,6 +49,7 @@ def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: Tr
     from orange_plan.sim.truth import load_truth
     from orange_plan.telemetry.recording import recording_extension, write_recording
 
+    check_range(max_duration_s, "--max-duration-s", high=MAX_TIME_S)
     check_output(output, "-o", inputs=[scenario, plan, truth])  # before the work
     recording_extension(output)
     ctx = load_context(scenario)

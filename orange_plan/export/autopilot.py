@@ -74,6 +74,9 @@ NAV_WAYPOINT, NAV_RETURN_TO_LAUNCH, NAV_TAKEOFF, DO_CHANGE_SPEED = 16, 20, 22, 1
 FRAME_GLOBAL, FRAME_MISSION, FRAME_GLOBAL_RELATIVE_ALT = 0, 2, 3
 SPEED_TYPE_GROUND = 1
 """DO_CHANGE_SPEED param1: 0 airspeed, 1 ground speed (the plan's speeds are ground speeds)."""
+MAX_ALTITUDE_M = 10_000.0
+"""Highest flight altitude above home accepted [m]: above the ceiling of any battery
+aircraft, so a larger number is a slip (feet, millimetres), not a mission."""
 VEHICLE_TYPES = {"ground": 10, "aerial": 2, "marine": 11}
 """MAV_TYPE per robot kind: ground rover, quadrotor, surface boat."""
 FIRMWARE_TYPES = {"px4": 12, "ardupilot": 3}
@@ -260,7 +263,7 @@ class AutopilotMission:
 
 
 def build_mission(world, kind: str, xy_m, speed_mps, altitude_m: float | None = None,
-                  firmware: str = "px4") -> AutopilotMission:
+                  firmware: str = "px4", source: str = "tour") -> AutopilotMission:
     """The autopilot mission of a tour (module docstring, steps 2 and 3).
 
     Parameters
@@ -270,12 +273,14 @@ def build_mission(world, kind: str, xy_m, speed_mps, altitude_m: float | None = 
     xy_m, speed_mps : tour vertices (n, 2) [m] and speed leaving each vertex (n,) [m/s]
     altitude_m : flight altitude above home [m]; required for aerial robots, else 0
     firmware : "px4" or "ardupilot"
+    source : where the tour came from (its file), for messages
 
     Raises
     ------
     InputError
-        Map without ``origin``, an aerial robot without a positive altitude, an unknown
-        firmware, a tour of fewer than two vertices.
+        Map without ``origin``, an aerial robot without an altitude in (0, MAX_ALTITUDE_M],
+        an unknown firmware, a tour of fewer than two vertices, a tour that leaves the map's
+        free space (a plan made on another map).
     """
     origin = getattr(world.map, "origin", None)
     if origin is None:
@@ -289,6 +294,7 @@ def build_mission(world, kind: str, xy_m, speed_mps, altitude_m: float | None = 
     v = np.asarray(speed_mps, float)
     if len(xy) < 2 or v.shape != (len(xy),):
         raise InputError("a tour needs at least two vertices and one speed per vertex")
+    world.check_route(xy, source)
     keep = waypoint_indices(xy, v)
     lat, lon, _ = enu_to_geodetic(origin, xy[keep, 0], xy[keep, 1])
     home_lat, home_lon, _ = enu_to_geodetic(origin, *world.home_xy_m)
@@ -314,9 +320,12 @@ def build_mission(world, kind: str, xy_m, speed_mps, altitude_m: float | None = 
 
 def _altitude(kind: str, altitude_m) -> float:
     if kind == "aerial":
-        if altitude_m is None or not (math.isfinite(altitude_m) and altitude_m > 0):
-            raise InputError(f"an aerial robot needs a flight altitude above home > 0 m "
-                             f"(--altitude-m), got {altitude_m!r}")
+        if altitude_m is None:
+            raise InputError("an aerial robot needs its flight altitude above home: give "
+                             f"--altitude-m (metres, > 0 and <= {MAX_ALTITUDE_M:g})")
+        if not (math.isfinite(altitude_m) and 0 < altitude_m <= MAX_ALTITUDE_M):
+            raise InputError(f"--altitude-m = {altitude_m!r}: the flight altitude above home "
+                             f"must be > 0 and <= {MAX_ALTITUDE_M:g} m")
         return float(altitude_m)
     if altitude_m not in (None, 0, 0.0):
         raise InputError(f"--altitude-m = {altitude_m!r} applies to aerial robots only "
@@ -380,10 +389,10 @@ def wpl_text(mission: AutopilotMission) -> str:
     rows = [(0, 1, FRAME_GLOBAL, NAV_WAYPOINT, 0.0, 0.0, 0.0, 0.0, mission.home_lat_deg,
              mission.home_lon_deg, mission.home_alt_m, 1)]
     for k, it in enumerate(mission.items, start=1):
-        # NaN (yaw unchanged) has no portable spelling in this format; 0 is ignored by the
-        # autopilots for waypoints of ground and marine vehicles and means "no change" here.
-        params = [0.0 if math.isnan(p) else p for p in it.params]
-        rows.append((k, 0, it.frame, it.command, *params, 1))
+        # A NaN param (the yaw: keep the heading) is written "nan", as QGroundControl writes
+        # it in its own .waypoints files and reads it back (so do pymavlink and MAVProxy); a 0
+        # would command "face north" on PX4, unlike the same mission's .plan (null).
+        rows.append((k, 0, it.frame, it.command, *it.params, 1))
     lines = ["QGC WPL 110"]
     lines += ["\t".join(_wpl_field(x) for x in row) for row in rows]
     return "\n".join(lines) + "\n"
@@ -392,7 +401,7 @@ def wpl_text(mission: AutopilotMission) -> str:
 def _wpl_field(x) -> str:
     if isinstance(x, int):
         return str(x)
-    return repr(float(x))  # shortest exact decimal: positions survive to the last bit
+    return repr(float(x))  # shortest exact decimal (NaN: "nan"): positions keep every bit
 
 
 def write_mission(mission: AutopilotMission, path: str | Path, fmt: str) -> Path:

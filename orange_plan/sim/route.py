@@ -11,6 +11,9 @@ import pandas as pd
 from orange_plan.errors import InputError
 from orange_plan.paths import csv_delimiter_hint, read_json, require_file
 
+PLAN_SUFFIXES = (".geojson", ".json")
+"""File endings read as a plan GeoJSON; anything else is read as a route CSV."""
+
 
 @dataclass(frozen=True)
 class Route:
@@ -61,7 +64,7 @@ def load_route(path: str | Path) -> Route:
     """
     path = Path(path)
     require_file(path, "route")
-    if path.suffix.lower() in (".geojson", ".json"):
+    if path.suffix.lower() in PLAN_SUFFIXES:
         xy, speed = _from_plan(path)
     else:
         xy, speed = _from_csv(path)

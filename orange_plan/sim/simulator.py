@@ -152,13 +152,7 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
         raise InputError(f"max_duration_s (--max-duration-s) = {max_duration_s!r} must be a "
                          "positive number of seconds")
     scenario, world = ctx.scenario, ctx.world
-    world.check_points(route.xy_m, "route vertex")
-    free = world.segments_free(route.xy_m[:-1], route.xy_m[1:])
-    if not free.all():
-        i = int(np.argmin(free))
-        near = (f" or passes closer to its edges than the robot keeps ({world.keep_away_m:g} m: "
-                "robot.radius_m + mission.clearance_m)" if world.keep_away_m > 0 else "")
-        raise InputError(f"route segment {i} leaves the free space of the map{near}")
+    world.check_route(route.xy_m, route.source)
     route = route.with_default_speed(ctx.cruise_speed_mps)
     lap = route.lap() if to_depletion else route
     rng = np.random.default_rng(seed)

@@ -155,7 +155,8 @@ class World:
         ok = self.is_free(xy[:, 0], xy[:, 1])
         if not np.all(ok):
             i = int(np.flatnonzero(~ok)[0])
-            raise InputError(f"{what} {i} {self.clearance_problem(xy[i])}")
+            count = f" ({np.count_nonzero(~ok)} of {len(xy)} are)" if len(xy) > 1 else ""
+            raise InputError(f"{what} {i} {self.clearance_problem(xy[i])}{count}")
 
     def clearance_problem(self, xy) -> str | None:
         """Why a point is not in free space, as a phrase to follow its name ("at (x, y) m is
@@ -183,3 +184,27 @@ class World:
         return (f"{distance:.3g} m from the nearest obstacle, no-go zone or boundary edge, "
                 f"closer than the robot keeps (robot.radius_m + mission.clearance_m = "
                 f"{self.keep_away_m:g} m)")
+
+    def check_route(self, xy, source: str = "route") -> None:
+        """Raise InputError unless a polyline lies in free space: every vertex and every
+        straight segment between them (a route made on another map, or in another frame,
+        is refused before anything drives or flies it).
+
+        Parameters
+        ----------
+        xy : route vertices (n, 2) [m]
+        source : the route's file, for the message
+        """
+        xy = np.atleast_2d(np.asarray(xy, float))
+        try:
+            self.check_points(xy, "route vertex")
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}; was the route made on this scenario's "
+                             "map?") from None
+        free = self.segments_free(xy[:-1], xy[1:])
+        if not free.all():
+            i = int(np.argmin(free))
+            near = (f" or passes closer to its edges than the robot keeps ({self.keep_away_m:g} "
+                    "m: robot.radius_m + mission.clearance_m)" if self.keep_away_m > 0 else "")
+            raise InputError(f"{source}: route segment {i} leaves the free space of the "
+                             f"map{near}")
