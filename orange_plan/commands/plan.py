@@ -85,5 +85,10 @@ def _print_summary(s: dict, png) -> None:
     out.print(f"duration {s['duration_s'] / 60:,.1f} min, {s['candidates_visited']} coverage "
               f"candidates, return probability {s['return_probability']:.4f}, planned in "
               f"{s['planner_seconds']:.1f} s")
+    if "closed_loop_coverage_m2" in s:
+        out.print(f"pattern: {s['pattern']}; flown in closed loop (turning home on the measured "
+                  f"energy) it is expected to cover {s['closed_loop_coverage_m2']:,.0f} m^2 "
+                  f"(the plan's continuation, {s['closed_loop_turn_m']:,.0f} m of route "
+                  f"against {s['guaranteed_length_m']:,.0f} m guaranteed)")
     if png is not None:
         out.print(f"wrote {png}")
