@@ -55,6 +55,8 @@ from orange_plan.planning.reach import (
     prepare_reach,
     query_points,
     reserve_J,
+    reserve_rule,
+    return_probability,
 )
 from orange_plan.planning.returns import DrivenReturns
 from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, energy_field
@@ -833,12 +835,12 @@ def _finish(ctx, setup: TourSetup, plan: Plan, tour, variance, start: StartState
         "coverage_fraction": float(covered.area / free_area) if free_area > 0 else 0.0,
         "coverage_bound_m2": float(bound),
         "duration_s": float(plan.t_s[-1] - start.time_s),
-        "return_probability": return_probability(setup.reach, plan, variance),
+        "return_probability": plan_return_probability(setup.reach, plan, variance),
         "planner_seconds": _time.perf_counter() - t0,
         "energy_used_start_J": reach.energy_used_J,
         "candidates_visited": len(tour.nodes),
         "min_margin_J": float(plan.margin_J.min()),
-        "reserve_rule": f"{reach.reserve.kind} = {reach.reserve.value:g}",
+        "reserve_rule": reserve_rule(reach.reserve),
     }
     return replace(plan, waypoints_xy_m=waypoints, covered=covered, summary=summary)
 
@@ -852,17 +854,11 @@ def min_energy_per_m(ctx) -> float:
     return simplified_range(ctx.scenario, ctx.model, crr).energy_per_m_J
 
 
-def return_probability(reach: Reachability, plan: Plan, variance_J2) -> float:
+def plan_return_probability(reach: Reachability, plan: Plan, variance_J2) -> float:
     """Probability of getting home from the worst vertex of the plan [-].
 
     The energy still needed at a vertex (used so far + return) is taken as normal around its
     planned value with its predictive variance ``variance_J2``, whatever the reserve rule.
     """
-    from statistics import NormalDist
-
-    slack = reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J
-    sd = np.sqrt(np.maximum(np.asarray(variance_J2, float), 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(sd > 0, slack / sd, np.where(slack >= 0, np.inf, -np.inf))
-    worst = float(z.min())
-    return 1.0 if worst == np.inf else 0.0 if worst == -np.inf else NormalDist().cdf(worst)
+    return return_probability(
+        reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J, variance_J2)
