@@ -232,6 +232,12 @@ def _one_line_warnings():
                 print(f"orange-plan: warning: {' '.join(message.split())}", file=sys.stderr)
 
 
+def warn(message: str) -> None:
+    """One ``orange-plan: warning: ...`` line on stderr (also under --json: stdout stays one
+    object), in the form library warnings take."""
+    print(f"orange-plan: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
 def print_json(obj) -> None:
     """Print one JSON object (NaN/inf become null: JSON has no such numbers)."""
     stream = _json_stream[-1] if _json_stream else out.file

@@ -99,3 +99,45 @@ def test_bad_arguments_are_one_line_errors():
     assert code == 2 and "--missions = 0 must be >= 1" in stderr
     code, _, stderr = run_cli("bench", "mission", "--quick", "--png", "x.jpg")
     assert code == 2 and "must end in .png" in stderr
+
+
+def figure_result(strandings: dict) -> dict:
+    """A study's result as mission_plot reads it: 20 missions, the open loop and the oracle
+    at the same place, ``strandings`` per method."""
+    coverage = {"session": 0.84, "open_loop": 1.0, "lawnmower": 1.48, "oracle": 1.0}
+
+    def row(family, method, shift=0.0):
+        return {"family": family, "method": method, "missions": 20,
+                "strandings": strandings[method], "coverage_over_oracle": coverage[method] + shift}
+
+    return {"missions": 20, "complete": True, "spec": {"confidence": 0.99},
+            "rows": [row("all", m) for m in coverage],
+            "by_family": [row(f, m, s) for f, s in (("within", 0.1), ("beyond", -0.05))
+                          for m in coverage]}
+
+
+@pytest.mark.parametrize("strandings", [
+    {"session": 0, "open_loop": 0, "lawnmower": 20, "oracle": 0},   # 100 % stranded
+    {"session": 0, "open_loop": 0, "lawnmower": 0, "oracle": 0},    # none
+    {"session": 1, "open_loop": 3, "lawnmower": 9, "oracle": 3},
+])
+def test_mission_figure_labels_apart_and_axis_to_the_data(strandings):
+    import matplotlib.pyplot as plt
+
+    from orange_plan.bench.mission import mission_plot
+
+    fig = mission_plot(figure_result(strandings))
+    try:
+        ax = fig.axes[0]
+        renderer = fig.canvas.get_renderer()
+        labels = fig.findobj(lambda a: a.get_gid() == "method-label")
+        named = " ".join(t.get_text() for t in labels)
+        assert all(m in named for m in ("(a)", "(b)", "(c)", "(d)")), named
+        boxes = [t.get_window_extent(renderer) for t in labels]
+        assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+        top = 100.0 * max(strandings.values()) / 20
+        lo, hi = ax.get_xlim()
+        assert hi <= max(top, 5.0) * 1.1 + 1.0 and hi <= 107.0, (lo, hi)
+        assert all(b.x0 >= ax.bbox.x0 - 1 and b.x1 <= ax.bbox.x1 + 1 for b in boxes)
+    finally:
+        plt.close(fig)

@@ -141,3 +141,26 @@ def test_bad_output_names_are_refused_before_work(world, tmp_path):
 def test_box_helper_is_closed():
     ring = box(0, 0, 1, 1)[0]
     assert ring[0] == ring[-1]
+
+
+@pytest.mark.parametrize("reserve, warned", [({"fraction": 0.0}, True),
+                                             ({"confidence": 0.95}, False)])
+def test_a_plan_unlikely_to_get_home_is_said_so(tmp_path, reserve, warned):
+    """Below the documented probability of getting home, one warning line on stderr and the
+    same text in the JSON's ``warnings``; a confidence reserve keeps it above that."""
+    from orange_plan.planning.reach import RETURN_PROBABILITY_WARN
+
+    scenario = write_world(tmp_path, width_m=30.0, height_m=20.0, rated_energy_Wh=1.0,
+                           reserve=reserve)
+    code, stdout, stderr = run_cli("plan", scenario, "-o", tmp_path / "plan.geojson",
+                                   "--vertices", "300", "--json")
+    assert code == 0, stderr
+    report = json.loads(stdout)
+    assert (report["return_probability"] < RETURN_PROBABILITY_WARN) is warned
+    lines = [line for line in stderr.splitlines() if "warning" in line]
+    if warned:
+        assert len(lines) == 1 and len(report["warnings"]) == 1
+        assert report["warnings"][0] in lines[0]
+        assert f"{report['return_probability']:.2f}" in lines[0] and "fraction = 0" in lines[0]
+    else:
+        assert lines == [] and report["warnings"] == []

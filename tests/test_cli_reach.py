@@ -100,3 +100,30 @@ def test_time_limit_reason_in_json_and_text(tmp_path, goals_csv):
     assert "exceeds mission.time_limit_s = 30 s" in far["reason"]
     code, out, _ = run_cli("reach", scenario, "--goals", goals_csv, "--vertices", "200")
     assert code == 0 and "mission.time_limit_s" in out
+
+
+def test_a_goal_unlikely_to_get_home_is_said_so(tmp_path):
+    """A goal feasible under its reserve rule whose round trip leaves too little for the
+    model's uncertainty: one warning line on stderr, the same text in ``warnings``."""
+    from orange_plan.planning.reach import RETURN_PROBABILITY_WARN
+
+    scenario = write_world(tmp_path, reserve={"fraction": 0.0})
+    goals = tmp_path / "goals.csv"
+    goals.write_text("x_m,y_m,name\n35,25,far\n4,4,near\n", encoding="utf-8")
+    first = json.loads(run_cli("reach", scenario, "--goals", goals, "--vertices", "200",
+                               "--json")[1])
+    assert first["warnings"] == [] and first["home_return_probability"] == 1.0
+    far = first["goals"][0]
+    # used energy that leaves the far goal's round trip a margin of 1 J: feasible, and about
+    # as likely to fall short as not
+    used = first["energy_available_J"] - far["energy_to_goal_J"] - far["energy_goal_to_home_J"] - 1
+    code, out, err = run_cli("reach", scenario, "--goals", goals, "--vertices", "200",
+                             "--energy-used-J", str(used), "--json")
+    assert code == 0, err
+    report = json.loads(out)
+    far, near = report["goals"]
+    assert far["feasible"] and far["return_probability"] < RETURN_PROBABILITY_WARN
+    assert near["return_probability"] >= RETURN_PROBABILITY_WARN
+    lines = [line for line in err.splitlines() if "warning" in line]
+    assert len(lines) == 1 == len(report["warnings"]) and report["warnings"][0] in lines[0]
+    assert "1 of the 2 feasible goals (lowest: goal far)" in lines[0]

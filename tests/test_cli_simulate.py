@@ -38,6 +38,20 @@ def test_simulate_writes_a_recording_and_one_json_object(files):
             "soc", "payload_kg", "sensor_rate_Hz", "surface"} <= columns
 
 
+@pytest.mark.parametrize("rate_hz", ["10", "3"])
+def test_simulate_and_predict_give_one_recording_one_duration(files, rate_hz):
+    folder, scenario = files
+    code, stdout, _ = run_cli("simulate", scenario, folder / "route.csv", "-o", folder / "r.csv",
+                              "--rate-hz", rate_hz, "--json")
+    assert code == 0
+    simulated = json.loads(stdout)["duration_s"]
+    code, stdout, _ = run_cli("predict", folder / "r.csv", "--scenario", scenario, "--json")
+    assert code == 0
+    predicted = json.loads(stdout)["duration_s"]
+    t = pd.read_csv(folder / "r.csv")["t_s"]
+    assert simulated == pytest.approx(predicted) == pytest.approx(t.iloc[-1] - t.iloc[0])
+
+
 def test_calibrate_json_and_written_scenario(files):
     folder, scenario = files
     run_cli("simulate", scenario, folder / "route.csv", "-o", folder / "rec.csv", "--truth",

@@ -235,3 +235,63 @@ def test_real_husky_run_turning_scrub_is_found_with_the_a_priori_scenario():
     result = diagnose(rec, ctx)
     assert "turning" in [f.term for f in result.findings]
     assert result.improved.cv_rmse_W < 0.67 * result.baseline.cv_rmse_W
+
+
+@pytest.fixture(scope="module")
+def payload_pickup():
+    """A payload picked up at 40 s on the lab floor (600 s at 10 Hz): (frame, diagnosis)."""
+    from conftest import REPO
+
+    ctx = load_context(REPO / "scenarios" / "rusti_v1_box.toml")
+    loop = np.array([[1, 1], [7, 1], [7, 4.4], [1, 4.4], [1, 1]], float)
+    route = Route(loop, np.full(len(loop), 0.3), "loop")
+    truth = Truth(power_std_W=0.2, payload_kg=2.0, payload_from_s=40.0)
+    frame = simulate(ctx, route, truth, seed=0, sample_rate_Hz=10.0, to_depletion=True,
+                     max_duration_s=600.0).frame
+    return frame, diagnose(recording_from_frame(frame), ctx)
+
+
+def test_one_condition_found_in_time_and_by_condition_is_one_true_row(payload_pickup):
+    """The window before the pickup and the payload condition are the same finding: one
+    row, worded so that it holds for the samples it names (exactly 0 kg is "<= 0 kg")."""
+    frame, result = payload_pickup
+    rows = [m.where for m in result.mismatches]
+    assert len(rows) == len(set(rows)), rows
+    payload = frame["payload_kg"].to_numpy()
+    for m in result.mismatches:
+        if "payload" in m.where:
+            op, bound = m.where.split("payload ")[1].split()[:2]
+            inside = (frame["t_s"] >= m.t_start_s) & (frame["t_s"] < m.t_end_s)
+            holds = payload[inside] >= float(bound) if op == ">=" else \
+                payload[inside] <= float(bound)
+            assert op in (">=", "<=") and holds.mean() >= 0.75, (m, holds.mean())
+    assert any("payload" in w for w in rows), rows
+
+
+@pytest.mark.parametrize("windows", ["found", "many"])
+def test_figure_shades_every_listed_window_in_seconds(payload_pickup, windows):
+    """One bar per row of the table, long or short, and one time unit on every time axis."""
+    import matplotlib.pyplot as plt
+
+    from orange_plan.identify.locate import Mismatch
+    from orange_plan.viz.diagnose_plot import diagnosis_figure
+
+    _frame, result = payload_pickup
+    if windows == "many":  # overlapping, run-wide and late windows, as a table may list
+        result = replace(result, mismatches=[
+            Mismatch(0.0, 40.0, -0.2, "while payload <= 0 kg"),
+            Mismatch(0.0, 590.0, 0.05, "while speed >= 0.3 m/s"),
+            Mismatch(100.0, 400.0, 0.1, "while |yaw rate| >= 0.1 rad/s"),
+            Mismatch(560.0, 599.0, 0.3, "from t = 560 s to 599 s, a change in time")])
+    fig = diagnosis_figure(result)
+    try:
+        bars = fig.findobj(lambda a: a.get_gid() == "located-window")
+        assert len(bars) == len(result.mismatches) > 0
+        spans = sorted((b.get_x(), b.get_x() + b.get_width()) for b in bars)
+        assert spans == pytest.approx(sorted((m.t_start_s, m.t_end_s)
+                                             for m in result.mismatches))
+        labels = [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()]
+        assert not any("[min]" in label for label in labels), labels
+        assert sum("time" in label and "[s]" in label for label in labels) >= 1
+    finally:
+        plt.close(fig)

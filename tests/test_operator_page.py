@@ -142,6 +142,9 @@ def test_operator_page_draws_the_plan_and_follows_the_robot(server, browser):
                                                                          "#tour line")}
     assert all(s.startswith("rgb(") for s in strokes)
     assert "m/s" in browser.find_element(By.ID, "legend").text
+    # one speed: said in words, no colour ramp from a value to itself
+    assert "throughout" in browser.find_element(By.ID, "legend").text
+    assert not browser.find_elements(By.CSS_SELECTOR, "#legend .ramp")
     wait.until(lambda d: d.find_element(By.ID, "robot").get_attribute("visibility") == "visible")
     assert robot_xy(browser) == pytest.approx(HOME)
 
@@ -203,3 +206,49 @@ def test_operator_page_with_a_token(tmp_path, browser):
         assert "token" not in browser.current_url
     finally:
         stop()
+
+
+def hatch_pixel_share(browser, shot: Path) -> float:
+    """Share of the pixels inside the first no-go zone (its on-screen box, less a margin that
+    leaves its outline out) drawn in the hatching's dark red."""
+    import numpy as np
+    from PIL import Image
+
+    box = browser.execute_script(
+        "const r = document.querySelector('#nogo path').getBoundingClientRect();"
+        "return [r.left, r.top, r.right, r.bottom, window.devicePixelRatio];")
+    left, top, right, bottom, ratio = box
+    margin = 4
+    image = Image.open(shot).convert("RGB")
+    inner = image.crop((int((left + margin) * ratio), int((top + margin) * ratio),
+                        int((right - margin) * ratio), int((bottom - margin) * ratio)))
+    r, g, b = np.asarray(inner, dtype=int).reshape(-1, 3).T
+    return float(np.mean((r > 120) & (g < 110) & (b < 110))) if r.size else 0.0
+
+
+def square(x0: float, y0: float, side: float) -> dict:
+    return {"type": "Polygon", "coordinates": [[[x0, y0], [x0 + side, y0],
+                                                 [x0 + side, y0 + side], [x0, y0 + side],
+                                                 [x0, y0]]]}
+
+
+@pytest.mark.parametrize("scenario, zone", [
+    ("rusti_v1_box", square(5.8, 0.4, 1.6)),        # an 8 m x 6 m lab floor
+    ("ar_drone_wind", square(250.0, 40.0, 100.0)),  # a 400 m x 300 m field
+])
+def test_no_go_hatching_shows_at_every_map_size(server, browser, tmp_path, scenario, zone):
+    mission = post(f"{server}/missions", {"scenario": scenario, "n_vertices": 200})
+    mid = mission["mission_id"]
+    post(f"{server}/missions/{mid}/map", {"no_go": [zone], "replan": False})
+    browser.get(f"{server}/?mission={mid}")
+    wait = WebDriverWait(browser, 30, poll_frequency=0.2)
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#nogo path"))
+    time.sleep(0.5)
+    shot = tmp_path / f"{scenario}.png"
+    browser.save_screenshot(str(shot))
+    if os.environ.get("ORANGE_PLAN_SCREENSHOT"):
+        shutil.copy(shot, Path(os.environ["ORANGE_PLAN_SCREENSHOT"]).with_suffix(
+            f".{scenario}.png"))
+    share = hatch_pixel_share(browser, shot)
+    # a stripe 1.5 px wide every 8 px covers about a sixth of the zone (0.16 on either map)
+    assert 0.08 < share < 0.35, share

@@ -111,7 +111,7 @@ def test_plan_png_other_scenarios(scenario, tmp_path):
     region = box(x0, y0, x0 + 0.7 * (x1 - x0), y0 + 0.7 * (y1 - y0))
     step = (x1 - x0) / 100
     xy = lawnmower(ctx.world, region, 8 * step, step)
-    plan = synthetic_plan(ctx.world, xy, 2 * step, n_waypoints=60)  # > 40: no numbers
+    plan = synthetic_plan(ctx.world, xy, 2 * step, n_waypoints=60)
     out = plot_plan(ctx.world, plan, tmp_path / f"{scenario}.png", scenario)
     png_size(out)
 
@@ -282,3 +282,45 @@ def test_draw_map_surface_outlines_for_overlay_figures(campus, tmp_path):
     with pytest.raises(ValueError, match="outline"):
         draw_map(plt.figure().add_subplot(), campus.world, surfaces="hatch")
     plt.close("all")
+
+
+def waypoint_numbers(fig) -> list:
+    return [t for t in fig.findobj(lambda a: a.get_gid() == "waypoint-number")]
+
+
+@pytest.mark.parametrize("n_waypoints", [12, 150, 400])
+def test_every_waypoint_is_numbered_legibly(campus, n_waypoints):
+    """Every waypoint carries its visiting order, however many there are, in type no
+    smaller than WAYPOINT_LABEL_PT allows, and few numbers run into each other."""
+    import matplotlib.pyplot as plt
+
+    fig = plan_plot.plan_figure(campus.world, campus_plan(campus, n_waypoints), "campus")
+    try:
+        labels = waypoint_numbers(fig)
+        assert [t.get_text() for t in labels] == [str(i) for i in range(n_waypoints)]
+        assert min(t.get_fontsize() for t in labels) >= plan_plot.WAYPOINT_LABEL_PT[0]
+        renderer = fig.canvas.get_renderer()
+        boxes = [t.get_window_extent(renderer) for t in labels]
+        touching = sum(any(a.overlaps(b) for b in boxes[:i] + boxes[i + 1:])
+                       for i, a in enumerate(boxes))
+        assert touching <= 0.1 * n_waypoints, touching
+    finally:
+        plt.close(fig)
+
+
+def test_one_speed_is_said_in_the_legend_without_a_colour_bar(campus):
+    import matplotlib.pyplot as plt
+
+    plan = campus_plan(campus)
+    steady = Plan(**{**plan.__dict__, "speed_mps": np.full(len(plan.xy_m), 1.25)})
+    for which, expect_bar in ((plan, True), (steady, False)):
+        fig = plan_plot.plan_figure(campus.world, which, "campus")
+        try:
+            bars = [ax for ax in fig.findobj(lambda a: hasattr(a, "_colorbar"))]
+            from matplotlib.text import Text
+
+            texts = [t.get_text() for t in fig.findobj(Text)]
+            assert bool(bars) is expect_bar
+            assert any("1.25 m/s throughout" in t for t in texts) is not expect_bar
+        finally:
+            plt.close(fig)

@@ -17,6 +17,7 @@ from orange_plan.cli import (
     out,
     parse_xy,
     print_json,
+    warn,
 )
 from orange_plan.paths import check_output
 from orange_plan.progress import stages, wanted
@@ -67,7 +68,14 @@ def plan_cmd(
 
             step("drawing the plan")
             plot_plan(ctx.world, plan, png, f"{ctx.scenario.name}: exploration plan ({cost})")
-    report = {"scenario": ctx.scenario.name, "plan": str(output), **plan.summary}
+    from orange_plan.planning.reach import low_return_warning
+
+    low = low_return_warning("the plan", plan.summary["return_probability"],
+                             ctx.scenario.mission.reserve)
+    report = {"scenario": ctx.scenario.name, "plan": str(output), **plan.summary,
+              "warnings": [low] if low else []}
+    for line in report["warnings"]:
+        warn(line)
     if as_json:
         print_json(report)
         return

@@ -18,6 +18,7 @@ from orange_plan.cli import (
     out,
     parse_xy,
     print_json,
+    warn,
 )
 from orange_plan.progress import stages, wanted
 
@@ -85,12 +86,33 @@ def reach_cmd(
         "time_limit_s": reach.time_limit_s,
         "time_used_s": reach.time_used_s,
         "speed_mps": reach.exact.speed_mps,
+        "home_return_probability": home.return_probability,
         "goals": [g.to_dict() for g in results],
+        "warnings": _warnings(home, results, ctx.scenario.mission.reserve),
     }
+    for line in report["warnings"]:
+        warn(line)
     if as_json:
         print_json(report)
         return
     _print_report(ctx.scenario.name, report, png)
+
+
+def _warnings(home, goals: list, reserve) -> list[str]:
+    """A line for a way home, and one for all feasible goals, that get home with too low a
+    probability (``planning.reach.RETURN_PROBABILITY_WARN``)."""
+    from orange_plan.planning.reach import low_return_warning
+
+    lines = [low_return_warning("the way home", home.return_probability, reserve)
+             if home.reachable else None]
+    risky = [(g.return_probability, g.name or str(i)) for i, g in enumerate(goals)
+             if g.feasible and low_return_warning("", g.return_probability, reserve)]
+    if risky:
+        p, name = min(risky)
+        what = (f"{len(risky)} of the {sum(g.feasible for g in goals)} feasible goals "
+                f"(lowest: goal {name})")
+        lines.append(low_return_warning(what, p, reserve))
+    return [line for line in lines if line]
 
 
 def _kj(value) -> str:

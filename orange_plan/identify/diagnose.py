@@ -80,6 +80,7 @@ from orange_plan.identify.calibrate import Samples, autoregressive_inflation, re
 from orange_plan.identify.locate import (
     locate,
     locate_by_condition,
+    merge_equal_conditions,
     per_second,
     quarters,
     residual_by_condition,
@@ -1336,8 +1337,8 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
     conditions = residual_by_condition(d, resid, baseline.tau)
     result = Diagnosis(
         design=d, baseline=baseline, improved=improved, chosen=chosen, findings=findings,
-        mismatches=[*locate(d, resid),
-                    *locate_by_condition(d, resid, conditions)],
+        mismatches=merge_equal_conditions(locate(d, resid),
+                                          locate_by_condition(d, resid, conditions)),
         conditions=conditions,
         surfaces=residual_by_surface(d, resid), trials=trials,
         verdict="missing physics found" if findings else "no missing physics found",

@@ -80,7 +80,6 @@ def locate_by_condition(d, resid: np.ndarray, conditions: list[dict],
                      key=lambda c: -abs(c["spearman_rho"]))
     for cond in flagged[:most]:
         arr = values[cond["condition"]]
-        _values, label, unit = CONDITIONS[cond["condition"]]
         upper, lower = quarters(arr)
         if not (upper.any() and lower.any()):
             continue
@@ -88,8 +87,29 @@ def locate_by_condition(d, resid: np.ndarray, conditions: list[dict],
         hit = upper if pick_upper else lower
         bound = arr[upper].min() if pick_upper else arr[lower].max()
         t = d.t_s[hit]
-        where = f"while {label} {'>=' if pick_upper else '<='} {bound:.3g}{' ' + unit if unit else ''}"
+        where = condition_phrase(cond["condition"], pick_upper, bound)
         out.append(Mismatch(float(t[0]), float(t[-1]), float(np.mean(resid[hit])), where))
+    return out
+
+
+def condition_phrase(name: str, higher: bool, bound: float) -> str:
+    """"while X >= bound" (or "<="): inclusive, since ``bound`` is a value the samples take
+    (a payload of exactly 0 kg is "<= 0 kg", never "< 0 kg"). Every mismatch row is worded
+    here, so one condition found two ways reads the same and ``merge_equal_conditions``
+    can see it."""
+    _values, label, unit = CONDITIONS[name]
+    return f"while {label} {'>=' if higher else '<='} {bound:.3g}{' ' + unit if unit else ''}"
+
+
+def merge_equal_conditions(windows: list[Mismatch], by_condition: list[Mismatch]
+                           ) -> list[Mismatch]:
+    """The time windows, then each condition's row unless a window already states the same
+    condition over an overlapping span (the same finding, reached twice: one row)."""
+    out = list(windows)
+    for m in by_condition:
+        if not any(w.where == m.where and w.t_start_s <= m.t_end_s and m.t_start_s <= w.t_end_s
+                   for w in out):
+            out.append(m)
     return out
 
 
@@ -147,7 +167,8 @@ def condition_values(d) -> dict[str, np.ndarray]:
 
 def describe(d, inside: np.ndarray) -> str:
     """The condition that best sets ``inside`` apart: a surface it is on, or a feature
-    whose values differ most (standardised mean difference), as "while X > q"."""
+    whose values differ most (standardised mean difference), as "while X >= q" (q: the
+    quartile of the window's values on the far side: three quarters of them pass)."""
     surface = _surface_phrase(d, inside)
     best, best_score = None, 0.5
     for name, arr in condition_values(d).items():
@@ -160,10 +181,9 @@ def describe(d, inside: np.ndarray) -> str:
     parts = []
     if best is not None:
         arr = condition_values(d)[best]
-        _values, label, unit = CONDITIONS[best]
         higher = arr[inside].mean() > arr[~inside].mean()
         q = np.percentile(arr[inside], 25 if higher else 75)
-        parts.append(f"while {label} {'>' if higher else '<'} {q:.3g}{' ' + unit if unit else ''}")
+        parts.append(condition_phrase(best, higher, q))
     if surface:
         parts.append(surface)
     if not parts:

@@ -58,6 +58,37 @@ def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
     return from_scenario(reserve).size_J(0.0, variance_J2, energy_available_J)
 
 
+RETURN_PROBABILITY_WARN = 0.9
+"""Below this probability of getting home (the energy left after the planned use covering
+it, under the model's predictive uncertainty, whatever the reserve rule) ``plan`` and
+``reach`` warn: a fraction or fixed reserve can be too small for the model's uncertainty."""
+
+
+def return_probability(slack_J, variance_J2) -> float:
+    """Probability that the energy left covers the energy needed, at the worst entry [-].
+
+    Parameters
+    ----------
+    slack_J : energy available minus the planned use (the reserve not counted) [J]; any shape
+    variance_J2 : predictive variance of the planned use, same shape [J^2]; the use is taken
+        as normal around its planned value (``ReserveRule.return_probability``)
+    """
+    sd = np.sqrt(np.maximum(np.asarray(variance_J2, float), 0.0))
+    return float(np.min(ReserveRule.return_probability(slack_J, sd)))
+
+
+def low_return_warning(what: str, probability: float | None, reserve) -> str | None:
+    """One line when ``probability`` (of getting home after ``what``) is below
+    ``RETURN_PROBABILITY_WARN``, else None."""
+    if probability is None or probability >= RETURN_PROBABILITY_WARN:
+        return None
+    rule = from_scenario(reserve)
+    advice = "" if rule.needs_variance else \
+        "; a reserve 'confidence = p' sizes it from the model's uncertainty"
+    return (f"{what}: probability of getting home {probability:.2f}, below "
+            f"{RETURN_PROBABILITY_WARN:g}, under the reserve {rule.rule_text()}{advice}")
+
+
 # --- set-up -------------------------------------------------------------------------------
 
 
@@ -218,6 +249,7 @@ class GoalResult:
     path_xy_m: np.ndarray | None = None
     speed_mps: np.ndarray | None = None
     reason: str | None = None
+    return_probability: float | None = None
 
     def to_dict(self) -> dict:
         """JSON form; a feasible goal's route (``path_xy_m``, ``speed_mps``) as lists, to drive
@@ -243,6 +275,7 @@ class HomeStatus:
     path_xy_m: np.ndarray | None
     duration_s: float | None = None
     reason: str | None = None
+    return_probability: float | None = None
 
 
 def home_status(reach: Reachability) -> HomeStatus:
@@ -256,10 +289,10 @@ def home_status(reach: Reachability) -> HomeStatus:
         path = evaluate_path(reach.exact, reach.roadmap.xy_m[reach.to_home.path(
             reach.start_index)], "roadmap energy")
         xy, energy_J, duration_s = path.xy_m, path.energy_J, path.duration_s
-    res = _reserve_of(reach, xy, energy_J)
+    res, probability = _reserve_and_probability(reach, xy, energy_J)
     margin = reach.energy_available_J - reach.energy_used_J - energy_J - res
     reason = _infeasible_reason(margin, reach.time_check(duration_s), "the way home")
-    return HomeStatus(reason is None, energy_J, res, margin, xy, duration_s, reason)
+    return HomeStatus(reason is None, energy_J, res, margin, xy, duration_s, reason, probability)
 
 
 def _infeasible_reason(margin_J: float, time: TimeLimitCheck, what: str) -> str | None:
@@ -272,13 +305,13 @@ def _infeasible_reason(margin_J: float, time: TimeLimitCheck, what: str) -> str 
     return "; ".join(reasons) or None
 
 
-def _reserve_of(reach: Reachability, xy, energy_J: float) -> float:
-    """Reserve of the path ``xy`` whose exact energy is ``energy_J`` [J]."""
-    var = 0.0
-    if reach.reserve.needs_variance:
-        gradient = path_gradient(reach.exact, xy)
-        var = reach.exact.model.predictive_variance_J2(gradient, energy_J)
-    return float(reach.reserve.size_J(energy_J, var, reach.energy_available_J))
+def _reserve_and_probability(reach: Reachability, xy, energy_J: float) -> tuple[float, float]:
+    """Reserve [J] of the path ``xy`` (to home) whose exact energy is ``energy_J``, and the
+    probability of getting home along it [-], both from its predictive variance."""
+    var = reach.exact.model.predictive_variance_J2(path_gradient(reach.exact, xy), energy_J)
+    res = float(reach.reserve.size_J(energy_J, var, reach.energy_available_J))
+    slack = reach.energy_available_J - reach.energy_used_J - energy_J
+    return res, return_probability(slack, var)
 
 
 def invalid_reason(world, x_m: float, y_m: float) -> str | None:
@@ -360,11 +393,12 @@ def _query_one(reach: Reachability, tree: cKDTree, x: float, y: float, name) -> 
     # the segment leaving it), so the two legs add up to the round trip exactly.
     to_goal = float(cumulative[len(out) - 1])
     total = float(cumulative[-1])
-    res = _reserve_of(reach, trip, total)
+    res, probability = _reserve_and_probability(reach, trip, total)
     margin = reach.energy_available_J - reach.energy_used_J - total - res
     reason = _infeasible_reason(margin, reach.time_check(energy.duration_s), "round trip")
     return GoalResult(x, y, name, True, reason is None, to_goal, total - to_goal, res, margin,
-                      energy.duration_s, trip, np.full(len(trip), float(c.speed_mps)), reason)
+                      energy.duration_s, trip, np.full(len(trip), float(c.speed_mps)), reason,
+                      probability)
 
 
 # --- fast field over many points ------------------------------------------------------------

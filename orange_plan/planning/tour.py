@@ -55,6 +55,7 @@ from orange_plan.planning.reach import (
     home_status,
     prepare_reach,
     query_points,
+    return_probability,
 )
 from orange_plan.planning.reserve import reserve_from
 from orange_plan.planning.returns import DrivenReturns
@@ -966,7 +967,7 @@ def _finish(ctx, setup: TourSetup, plan: Plan, waypoints, variance, start: Start
         "coverage_fraction": float(covered.area / free_area) if free_area > 0 else 0.0,
         "coverage_bound_m2": float(bound),
         "duration_s": float(plan.t_s[-1] - start.time_s),
-        "return_probability": return_probability(setup.reach, plan, variance),
+        "return_probability": plan_return_probability(setup.reach, plan, variance),
         "planner_seconds": _time.perf_counter() - t0,
         "energy_used_start_J": reach.energy_used_J,
         "candidates_visited": len(waypoints),
@@ -985,12 +986,11 @@ def min_energy_per_m(ctx) -> float:
     return simplified_range(ctx.scenario, ctx.model, crr).energy_per_m_J
 
 
-def return_probability(reach: Reachability, plan: Plan, variance_J2) -> float:
+def plan_return_probability(reach: Reachability, plan: Plan, variance_J2) -> float:
     """Probability of getting home from the worst vertex of the plan [-].
 
     The energy still needed at a vertex (used so far + return) is taken as normal around its
     planned value with its predictive variance ``variance_J2``, whatever the reserve rule.
     """
-    slack = reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J
-    sd = np.sqrt(np.maximum(np.asarray(variance_J2, float), 0.0))
-    return float(reach.reserve.return_probability(slack, sd).min())
+    return return_probability(
+        reach.energy_available_J - plan.energy_used_J - plan.energy_to_home_J, variance_J2)

@@ -15,6 +15,7 @@ A request to a mission still being rebuilt waits for it.
 
 from __future__ import annotations
 
+import atexit
 import gc
 import logging
 import secrets
@@ -304,10 +305,14 @@ def settle_heap() -> None:
     per full collection with 5 missions in one process (``gc.callbacks``); with 20 missions
     ``bench service`` had 0.3-0.75 s stalls that made its whole p99, gone once frozen. Frozen
     objects are still freed when no longer referenced; only reference cycles among them wait
-    for the next ``settle_heap`` (which unfreezes first)."""
+    for the next ``settle_heap`` (which unfreezes first). At exit everything is unfrozen
+    again: the interpreter's last collection skips frozen objects, so OMPL's bindings would
+    find their objects still alive and print nanobind's "leaked" report."""
     gc.unfreeze()
     gc.collect()
     gc.freeze()
+    atexit.unregister(gc.unfreeze)  # registered once however often the heap is settled
+    atexit.register(gc.unfreeze)
 
 
 def _state_event(kind: str, payload: dict) -> dict:

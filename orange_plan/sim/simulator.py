@@ -33,6 +33,7 @@ from orange_plan.physics.profile import (
 from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
+from orange_plan.telemetry.derive import duration_s
 
 MAX_RATE_HZ = 1000.0
 """Highest recording rate: beyond it a long run's table no longer fits in memory (1e5 Hz
@@ -52,7 +53,7 @@ class SimResult:
     energy_J : true battery energy drawn (without recording noise) [J]
     energy_available_J : the truth's usable energy (scenario E_avail x capacity_factor) [J]
     distance_m : distance travelled along the path [m]
-    duration_s : mission time [s]
+    duration_s : the recording's duration, first to last sample (``telemetry.derive``) [s]
     moving_time_s : time with non-zero speed [s]
     depleted : the run stopped because the usable energy was spent
     laps : number of route laps driven (fractional) [-]
@@ -215,8 +216,8 @@ def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
     laps = float(frame.pop("_s").iloc[-1] / edges[-1])
     _add_noise(frame, rng, truth)
     distance = float(np.sum(frame["v_mps"]) * dt)
-    return SimResult(frame, used - float(energy_start_J), e_avail, distance, float(len(frame) * dt),
-                     float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps, clipped)
+    return SimResult(frame, used - float(energy_start_J), e_avail, distance,
+                     duration_s(frame["t_s"]), float(np.count_nonzero(frame["v_mps"] > 0) * dt), depleted, laps, clipped)
 
 
 def _columns(kin, s_lap, vertex_s, lap, world, state, power, carrying, truth, wind, cum,

@@ -1,4 +1,4 @@
-"""Derivation on a recording's time series: gap-free pieces, centred moving averages,
+"""Derivation on a recording's time series: its duration, gap-free pieces, centred moving averages,
 central differences and the heading of positions (rule 13 of ``telemetry.recording``)."""
 
 from __future__ import annotations
@@ -11,6 +11,14 @@ SMOOTH_WINDOW_S = 0.5
 """Centred moving-average window before differentiating positions or speed [s]."""
 STILL_SPEED_MPS = 0.05
 """Below this speed the heading of positions is noise: it is held [m/s]."""
+
+
+def duration_s(t_s) -> float:
+    """A recording's duration: from its first to its last sample, gaps included [s]. The one
+    definition every command reports (``simulate`` of what it wrote, ``predict`` of what it
+    read), so the same file has the same duration in both."""
+    t = np.asarray(t_s, float)
+    return float(t[-1] - t[0]) if t.size else 0.0
 
 
 def gap_free_pieces(t: np.ndarray, gap_threshold_s: float) -> list[slice]:

@@ -98,6 +98,7 @@ from orange_plan.paths import csv_delimiter_hint, require_file
 from orange_plan.telemetry.derive import (
     STILL_SPEED_MPS,
     derivative,
+    duration_s,
     gap_free_pieces,
     position_heading_rad,
     smooth_pieces,
@@ -206,8 +207,7 @@ class Recording:
     @property
     def duration_s(self) -> float:
         """Span from the first to the last sample, gaps included [s]."""
-        t = self.t_s
-        return float(t[-1] - t[0])
+        return duration_s(self.t_s)
 
     @property
     def energy_J(self) -> float:

@@ -1,5 +1,6 @@
-"""Figure of a diagnosis: the residual before and after over time, with the located windows
-shaded; the residual against each implicated feature, with the fitted term drawn over it."""
+"""Figure of a diagnosis: every located window as a bar on the time axis, the residual before
+and after over time; the residual against each implicated feature, with the fitted term
+drawn over it. Time is in seconds throughout, as in the table."""
 
 from __future__ import annotations
 
@@ -27,11 +28,15 @@ def diagnosis_figure(result, title: str = ""):
 
     d = result.design
     panels = result.feature_panels()
-    fig = plt.figure(figsize=(11, 7.5))
-    grid = fig.add_gridspec(2, max(1, len(panels)), height_ratios=[1.1, 1])
-    _time_panel(fig.add_subplot(grid[0, :]), result)
+    rows = max(1, len(result.mismatches))
+    strip_in = 0.25 + 0.22 * rows  # one bar per listed window [in]
+    fig = plt.figure(figsize=(11, 7.5 + strip_in))
+    grid = fig.add_gridspec(3, max(1, len(panels)), height_ratios=[strip_in, 4.0, 3.6])
+    time_ax = fig.add_subplot(grid[1, :])
+    _windows_strip(fig.add_subplot(grid[0, :], sharex=time_ax), result)
+    _time_panel(time_ax, result)
     for k, (label, feature, resid, fitted, name) in enumerate(panels):
-        ax = fig.add_subplot(grid[1, k])
+        ax = fig.add_subplot(grid[2, k])
         pick = np.linspace(0, d.n - 1, min(d.n, MAX_POINTS)).astype(int)
         ax.scatter(feature[pick], resid[pick], s=3, color="0.55", alpha=0.35,
                    label="residual without this term" if fitted is not None
@@ -55,24 +60,46 @@ def diagnosis_figure(result, title: str = ""):
     return fig
 
 
+def _windows_strip(ax, result) -> None:
+    """Every listed window as a shaded bar on the time axis, in the order of the table, with
+    its condition: windows can overlap or span most of the run, so each gets its own row
+    (shading them all on the residual panel would cover it)."""
+    rows = result.mismatches
+    t = result.design.t_s
+    middle = 0.5 * (t[0] + t[-1])
+    for k, m in enumerate(rows):
+        colour = "tab:red" if m.mean_residual_W > 0 else "tab:blue"
+        ax.barh(k, m.t_end_s - m.t_start_s, left=m.t_start_s, height=0.7, color=colour,
+                alpha=0.3, edgecolor=colour, lw=0.8, gid="located-window")
+        text = f" {m.where} ({m.mean_residual_W:+.3g} W) "
+        if m.t_start_s > middle:  # a late window: its words run left, inside the axes
+            ax.text(m.t_end_s, k, text, va="center", ha="right", fontsize=7.5, clip_on=True)
+        else:
+            ax.text(m.t_start_s, k, text, va="center", ha="left", fontsize=7.5, clip_on=True)
+    if not rows:
+        ax.text(0.5, 0.5, "no located windows", transform=ax.transAxes, ha="center",
+                va="center", fontsize=8, color="0.4")
+    ax.set_ylim(max(len(rows), 1) - 0.5, -0.5)  # first row on top, as in the table
+    ax.set_yticks([])
+    ax.tick_params(labelbottom=False)
+    ax.set_title("located windows, as listed (red: recorded above the baseline, blue: below)",
+                 fontsize=9)
+
+
 def _time_panel(ax, result) -> None:
-    d = result.design
+    """Residual 1 s means before and after against time [s] (the table's unit)."""
     edges, mean_before, mean_after = result.residual_per_second()
-    t_min = edges[:-1] / 60.0
-    span = d.t_s[-1] - d.t_s[0]
-    for m in result.mismatches:
-        if m.t_end_s - m.t_start_s < 0.5 * span:  # condition-wide spans would shade everything
-            ax.axvspan(m.t_start_s / 60.0, m.t_end_s / 60.0, color="tab:red", alpha=0.12, lw=0)
-    ax.plot(t_min, mean_before, color="0.35", lw=0.8,
+    t_s = edges[:-1]
+    ax.plot(t_s, mean_before, color="0.35", lw=0.8,
             label=f"before: baseline (RMSE {result.baseline.rmse_W:.3g} W)")
-    ax.plot(t_min, mean_after, color="tab:blue", lw=0.9,
+    ax.plot(t_s, mean_after, color="tab:blue", lw=0.9,
             label=f"after: with the found terms (RMSE {result.improved.rmse_W:.3g} W)")
     ax.axhline(0.0, color="0.2", lw=0.6)
-    ax.set_xlabel("time [min]")
+    ax.set_xlabel("time since start [s]")
     ax.set_ylabel("residual, 1 s means [W]")
     ax.set_title(f"{result.verdict}: " + (", ".join(
         f.term + (f" ({f.variant})" if f.variant else "") for f in result.findings) or
-        "nothing added") + "   (shaded: located windows)", fontsize=10)
+        "nothing added"), fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
 

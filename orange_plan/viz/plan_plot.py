@@ -32,8 +32,9 @@ from orange_plan.errors import InputError
 MAX_SHADE_CELLS = 400
 """Grid cells per side of the elevation hillshade and contours (fast on any map size)."""
 
-MAX_NUMBERED_WAYPOINTS = 40
-"""More waypoints than this are drawn without their numbers (they would only overlap)."""
+WAYPOINT_LABEL_PT = (4.5, 7.0)
+"""Smallest and largest type of the waypoints' numbers [pt]: every waypoint is numbered, in
+type as large as their spacing on the drawn map leaves room for (``_label_size``)."""
 
 SURFACE_COLOURS = ("#fdbf6f", "#cab2d6", "#b2df8a", "#fb9a99", "#ffff99", "#e5c494",
                    "#d9d9d9", "#fccde5", "#bc80bd", "#ccebc5")
@@ -246,9 +247,10 @@ def plot_plan(world, plan, path: str | Path, title: str) -> Path:
     """Write the PNG of an exploration plan (atomically) and return its path.
 
     Left: the map (``draw_map``), the covered area, the tour coloured by its commanded speed
-    (colour bar in m/s), the waypoints (numbered in visiting order, from 0 as the GeoJSON's
-    ``order``, when there are at most ``MAX_NUMBERED_WAYPOINTS``), the start when it is not
-    home, and home. Right: energy used, energy to home, reserve and homing margin against
+    (colour bar in m/s; one colour and the speed in the legend when the speed is constant),
+    every waypoint numbered in visiting order (from 0, as the GeoJSON's ``order``; the type
+    shrinks where waypoints are dense, ``WAYPOINT_LABEL_PT``), the start when it is not home,
+    and home. Right: energy used, energy to home, reserve and homing margin against
     mission time, with the available energy as a horizontal line. The title gives coverage
     (m^2 and % of the free area), energy planned / available and the return probability.
 
@@ -269,6 +271,26 @@ def plot_plan(world, plan, path: str | Path, title: str) -> Path:
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise InputError(f"{path}: the plan figure's file name must end in .png")
+    fig = plan_figure(world, plan, title)
+    import matplotlib.pyplot as plt  # after plan_figure chose the Agg backend
+
+    try:
+        with atomic_path(path, suffix=".png") as tmp:
+            # bbox_inches="tight" grows the canvas to whatever sticks out (legends, labels).
+            fig.savefig(tmp, dpi=110, bbox_inches="tight", pad_inches=0.15)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def plan_figure(world, plan, title: str):
+    """The plan figure (matplotlib Figure; the caller closes it), as ``plot_plan`` draws it.
+
+    Raises
+    ------
+    InputError
+        If the plan's per-vertex arrays disagree in length.
+    """
     xy = np.asarray(plan.xy_m, float).reshape(-1, 2)
     arrays = {k: np.asarray(getattr(plan, k), float) for k in
               ("t_s", "speed_mps", "energy_used_J", "energy_to_home_J", "reserve_J", "margin_J")}
@@ -284,12 +306,10 @@ def plot_plan(world, plan, path: str | Path, title: str) -> Path:
     layout = _layout(plt, world.true_map.boundary.bounds)
     try:
         _draw_plan_figure(layout, world, plan, xy, arrays, title)
-        with atomic_path(path, suffix=".png") as tmp:
-            # bbox_inches="tight" grows the canvas to whatever sticks out (legends, labels).
-            layout.fig.savefig(tmp, dpi=110, bbox_inches="tight", pad_inches=0.15)
-    finally:
+    except BaseException:
         plt.close(layout.fig)
-    return path
+        raise
+    return layout.fig
 
 
 WIDE_MAP = 2.0
@@ -349,36 +369,36 @@ def _draw_plan_figure(layout: _Layout, world, plan, xy, a: dict, title: str) -> 
         handles.append(Patch(facecolor=(*to_rgb(COVERED_COLOUR), 0.3), edgecolor=COVERED_EDGE,
                              label="covered (sensed) area"))
 
-    speed = a["speed_mps"]
+    speed = a["speed_mps"][:-1]  # the speed of the segment leaving each vertex
     if len(xy) >= 2:
         segments = np.stack([xy[:-1], xy[1:]], axis=1)
         lo, hi = float(np.nanmin(speed)), float(np.nanmax(speed))
-        if hi - lo < 1e-6:
-            lo, hi = lo - 0.05, hi + 0.05
         # A dark casing under the coloured line keeps every speed readable on any fill.
         ax.add_collection(LineCollection(segments, colors="black", linewidths=2.6, alpha=0.55,
                                          capstyle="round", joinstyle="round", zorder=5))
-        tour = LineCollection(segments, cmap=TOUR_CMAP, norm=Normalize(lo, hi), linewidths=1.6,
-                              capstyle="round", joinstyle="round", zorder=5.1)
-        tour.set_array(speed[:-1])  # the speed of the segment leaving each vertex
-        ax.add_collection(tour)
-        _speed_colourbar(layout, ax, tour)
-        handles.append(Line2D([], [], color=_cmap(TOUR_CMAP)(0.45), lw=1.8,
-                              label="tour (colour = speed)"))
+        if f"{lo:.2f}" == f"{hi:.2f}":  # one speed: a colour bar from it to itself says nothing
+            colour = _cmap(TOUR_CMAP)(0.45)
+            ax.add_collection(LineCollection(segments, colors=[colour], linewidths=1.6,
+                                             capstyle="round", joinstyle="round", zorder=5.1))
+            handles.append(Line2D([], [], color=colour, lw=1.8,
+                                  label=f"tour ({lo:.2f} m/s throughout)"))
+        else:
+            tour = LineCollection(segments, cmap=TOUR_CMAP, norm=Normalize(lo, hi),
+                                  linewidths=1.6, capstyle="round", joinstyle="round",
+                                  zorder=5.1)
+            tour.set_array(speed)
+            ax.add_collection(tour)
+            _speed_colourbar(layout, ax, tour)
+            handles.append(Line2D([], [], color=_cmap(TOUR_CMAP)(0.45), lw=1.8,
+                                  label="tour (colour = speed)"))
 
     wps = np.asarray(plan.waypoints_xy_m, float).reshape(-1, 2)
     if len(wps):
-        numbered = len(wps) <= MAX_NUMBERED_WAYPOINTS
         ax.plot(wps[:, 0], wps[:, 1], ls="", marker="o", ms=4.5, color="white", mec="black",
                 mew=0.8, zorder=6)
-        if numbered:
-            for i, (x, y) in enumerate(wps):
-                ax.annotate(str(i), (x, y), xytext=(3, 3), textcoords="offset points",
-                            fontsize=7, zorder=6.5,
-                            bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none",
-                                  "alpha": 0.7})
+        _number_waypoints(ax, wps, _points_per_m(layout, world.map.boundary.bounds))
         handles.append(Line2D([], [], ls="", marker="o", ms=5, color="white", mec="black",
-                              label="waypoint (visiting order)" if numbered else "waypoint"))
+                              label="waypoint (visiting order)"))
     if len(xy) and np.hypot(*(xy[0] - np.asarray(world.home_xy_m, float))) > 1e-6:
         ax.plot(*xy[0], marker="o", ms=9, color="limegreen", mec="black", ls="", zorder=7)
         handles.append(Line2D([], [], marker="o", ms=8, color="limegreen", mec="black", ls="",
@@ -392,6 +412,48 @@ def _draw_plan_figure(layout: _Layout, world, plan, xy, a: dict, title: str) -> 
     layout.energy_fig.legend(loc="outside lower center", ncol=3, fontsize=8, frameon=False)
     # Title and headline span the figure: a narrow map's panel could not hold them.
     layout.fig.suptitle(f"{title}\n{_headline(world, plan, a)}", fontsize=10.5)
+
+
+def _points_per_m(layout: _Layout, bounds) -> float:
+    """Typographic points per map metre on the drawn map (equal axes) [pt/m]."""
+    xmin, ymin, xmax, ymax = bounds
+    return 72.0 * min(layout.map_w_in / max(xmax - xmin, 1e-9),
+                      layout.map_h_in / max(ymax - ymin, 1e-9))
+
+
+def _label_size(wps: np.ndarray, points_per_m: float, room: float = 1.0) -> float:
+    """Type size [pt] of the waypoints' numbers: a number about as wide as ``room`` times
+    the gap to the nearest other waypoint (at the tenth percentile: a few close pairs may
+    touch), within ``WAYPOINT_LABEL_PT``."""
+    smallest, largest = WAYPOINT_LABEL_PT
+    if len(wps) < 2:
+        return largest
+    from scipy.spatial import cKDTree
+
+    gap_pt = cKDTree(wps).query(wps, k=2)[0][:, 1] * points_per_m
+    digits = len(str(len(wps) - 1))
+    width_per_pt = 0.6 * digits + 0.4  # a digit is about 0.6 em wide; the offset and halo
+    return float(np.clip(room * np.percentile(gap_pt, 10) / width_per_pt, smallest, largest))
+
+
+def _number_waypoints(ax, wps: np.ndarray, points_per_m: float) -> None:
+    """Every waypoint's visiting order beside it, in a white halo (legible on any fill
+    without a box hiding the tour). Where the numbers would need type below the smallest
+    size, they alternate above and below their waypoints: consecutive waypoints are the
+    close ones along a lane, so each number gets about twice the room."""
+    from matplotlib import patheffects
+
+    size = _label_size(wps, points_per_m)
+    stagger = size <= WAYPOINT_LABEL_PT[0]
+    if stagger:
+        size = _label_size(wps, points_per_m, room=2.0)
+    halo = [patheffects.withStroke(linewidth=1.6, foreground="white")]
+    for i, (x, y) in enumerate(wps):
+        below = stagger and i % 2 == 1
+        label = ax.annotate(str(i), (x, y), xytext=(2, -2 if below else 2),
+                            textcoords="offset points", va="top" if below else "baseline",
+                            fontsize=size, zorder=6.5, path_effects=halo, gid="waypoint-number")
+        label.set_in_layout(False)  # inside the map: hundreds of them need not be laid out
 
 
 def _speed_colourbar(layout: _Layout, ax, tour) -> None:

@@ -103,8 +103,12 @@ function drawMap(fc) {
     hatch.setAttribute("height", s);
     hatch.querySelector("rect").setAttribute("width", s);
     hatch.querySelector("rect").setAttribute("height", s);
-    hatch.querySelector("line").setAttribute("y2", s);
-    hatch.querySelector("line").setAttribute("stroke-width", 1.5 * state.pixel);
+    // the stripe in the middle of its tile: on the tile's edge half of it would be clipped
+    const line = hatch.querySelector("line");
+    line.setAttribute("x1", s / 2);
+    line.setAttribute("x2", s / 2);
+    line.setAttribute("y2", s);
+    line.setAttribute("stroke-width", 1.5 * state.pixel);
   }
   el("path", { d: geomPath(boundary.geometry) }, clear("boundary"));
   const surfaces = clear("surfaces");
@@ -156,15 +160,23 @@ function drawPlan(plan) {
   const legend = $("legend");
   legend.innerHTML = "";
   const span = document.createElement("span");
-  span.textContent = "planned speed " + lo.toFixed(2) + " m/s";
+  if (lo.toFixed(2) === hi.toFixed(2)) {
+    // one speed throughout: a colour ramp from a value to itself would say nothing
+    span.textContent = "planned speed " + lo.toFixed(2) + " m/s throughout";
+    legend.append(span);
+  } else {
+    span.textContent = "planned speed " + lo.toFixed(2) + " m/s";
+    legend.append(span, speedRamp(), document.createTextNode(hi.toFixed(2) + " m/s"));
+  }
+  const s = plan.summary || {};
+  $("plan-info").textContent = fmt(s.coverage_m2, 1) + " m², " + fmt(s.duration_s / 60, 1) + " min";
+}
+
+function speedRamp() {
   const ramp = document.createElement("span");
   ramp.className = "ramp";
   ramp.style.background = "linear-gradient(to right," + RAMP.join(",") + ")";
-  const end = document.createElement("span");
-  end.textContent = hi.toFixed(2) + " m/s";
-  legend.append(span, ramp, end);
-  const s = plan.summary || {};
-  $("plan-info").textContent = fmt(s.coverage_m2, 1) + " m², " + fmt(s.duration_s / 60, 1) + " min";
+  return ramp;
 }
 
 function drawLive(live) {
