@@ -84,6 +84,18 @@ class Plan:
     def n_vertices(self) -> int:
         return len(self.xy_m)
 
+    def expected_continuation_xy_m(self) -> np.ndarray | None:
+        """The part of the continuation a closed loop is expected to fly before turning home
+        (to ``summary["closed_loop_turn_m"]`` along the route), None without one [m]."""
+        from orange_plan.planning.paths import cut_path
+
+        rest = self.continuation_xy_m
+        if rest is None or len(rest) < 2:
+            return None
+        beyond = float(self.summary.get("closed_loop_turn_m", 0.0)
+                       - self.summary.get("guaranteed_length_m", 0.0))
+        return cut_path(rest, beyond) if beyond > 0 else None
+
     def to_geojson(self) -> dict:
         """The SPEC §4 FeatureCollection (tour, waypoints, covered, summary; with a closed-loop
         continuation, a LineString feature of kind ``continuation``)."""

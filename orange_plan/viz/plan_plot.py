@@ -52,6 +52,10 @@ TOUR_CMAP = "plasma"
 # --------------------------------------------------------------------------------------
 # Map
 # --------------------------------------------------------------------------------------
+CONTINUATION = "#d95f02"
+"""Colour of the closed loop's expected route beyond the guaranteed tour."""
+
+
 def draw_map(ax, world, *, home: bool = True, shading: bool = True,
              surfaces: str = "fill") -> list:
     """Draw a map on ``ax`` in metres with equal aspect and return its legend handles.
@@ -392,6 +396,7 @@ def _draw_plan_figure(layout: _Layout, world, plan, xy, a: dict, title: str) -> 
             handles.append(Line2D([], [], color=_cmap(TOUR_CMAP)(0.45), lw=1.8,
                                   label="tour (colour = speed)"))
 
+    handles += _draw_continuation(ax, plan)
     wps = np.asarray(plan.waypoints_xy_m, float).reshape(-1, 2)
     if len(wps):
         ax.plot(wps[:, 0], wps[:, 1], ls="", marker="o", ms=4.5, color="white", mec="black",
@@ -513,6 +518,32 @@ def _draw_energy(ex, plan, a: dict) -> None:
     ex.grid(alpha=0.3)
 
 
+def _draw_continuation(ax, plan) -> list:
+    """The closed loop's route beyond the guaranteed tour: the part it is expected to fly
+    before turning home (dashed), the turn point of the guaranteed tour and the expected one;
+    returns legend handles (none for a plan without a continuation)."""
+    from matplotlib.lines import Line2D
+
+    rest = getattr(plan, "continuation_xy_m", None)
+    expected = plan.expected_continuation_xy_m() if rest is not None else None
+    if rest is None or len(rest) < 2:
+        return []
+    handles = []
+    ax.plot(*rest[0], marker="D", ms=7, color="white", mec="black", ls="", zorder=7)
+    handles.append(Line2D([], [], marker="D", ms=6, color="white", mec="black", ls="",
+                          label="guaranteed tour turns home"))
+    if expected is not None and len(expected) >= 2:
+        ax.plot(expected[:, 0], expected[:, 1], ls=(0, (3, 2)), lw=1.6, color=CONTINUATION,
+                zorder=5.2)
+        ax.plot(*expected[-1], marker="X", ms=8, color=CONTINUATION, mec="black", ls="",
+                zorder=7)
+        handles += [Line2D([], [], ls=(0, (3, 2)), lw=1.6, color=CONTINUATION,
+                           label="closed loop: expected extra route"),
+                    Line2D([], [], marker="X", ms=7, color=CONTINUATION, mec="black", ls="",
+                           label="closed loop: expected turn home")]
+    return handles
+
+
 def _headline(world, plan, a: dict) -> str:
     """Coverage, energy, duration and return probability in one line."""
     s = plan.summary
@@ -533,7 +564,9 @@ def _headline(world, plan, a: dict) -> str:
     line2 = f"{energy}   ·   duration {duration / 60:.1f} min"
     if p is not None:
         line2 += f"   ·   return probability {p:.4g}"
-    return f"coverage {_area(cov)} ({100 * frac:.1f} % of the free area)   ·   {line2}"
+    closed = s.get("closed_loop_coverage_m2")
+    extra = f" guaranteed, {_area(closed)} expected in closed loop" if closed else ""
+    return f"coverage {_area(cov)}{extra} ({100 * frac:.1f} % of the free area)   ·   {line2}"
 
 
 def _area(m2: float) -> str:
