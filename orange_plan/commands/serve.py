@@ -30,7 +30,7 @@ def serve_cmd(
         help="Folder of maps a scenario may name (default: ./maps, else the installed "
              "examples).")] = None,
     max_body_bytes: Annotated[int, typer.Option(
-        min=1024, help="Largest request body accepted \\[bytes]; larger ones get 413.")]
+        min=1024, help="Largest request body accepted [bytes]; larger ones get 413.")]
         = 8 * 1024 * 1024,
 ) -> None:
     """Serve the replanning API (docs at /docs, OpenAPI at /openapi.json) and the operator
