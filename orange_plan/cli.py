@@ -24,7 +24,7 @@ try:  # typer >= 0.20 carries its own copy of click
 except ImportError:  # pragma: no cover - older typer runs on click itself
     from click import exceptions as click_exc
 
-from orange_plan.errors import InputError, OrangeError
+from orange_plan.errors import InputError, NamedInputError, OrangeError, plain_message
 
 
 class OneLineErrors(TyperGroup):
@@ -161,13 +161,18 @@ def default_scenario() -> Path:
     return examples_dir("scenarios", "a SCENARIO argument") / "kiwibot_campus.toml"
 
 
+OPTION_NAMES = {"start_xy": "--from", "energy_used_J": "--energy-used-J",
+                "time_used_s": "--time-used-s"}
+"""The CLI option that gives each value a ``NamedInputError`` may name."""
+
+
 class CommandFailed(SystemExit):
     """Raised after the error line has been printed."""
 
 
 def fail(message: str, code: int) -> None:
     """Print one line on stderr and exit with ``code``."""
-    first_line = " ".join(str(message).split())
+    first_line = plain_message(message)
     print(f"orange-plan: error: {first_line}", file=sys.stderr)
     raise CommandFailed(code)
 
@@ -186,6 +191,8 @@ def handles_errors(fn):
         try:
             with _one_line_warnings(), _stdout_for_json(json_mode):
                 return fn(*args, **kwargs)
+        except NamedInputError as exc:
+            fail(exc.named(OPTION_NAMES), 2)
         except InputError as exc:
             fail(str(exc), 2)
         except OrangeError as exc:

@@ -35,8 +35,8 @@ class TimeLimitCheck:
         """None within the limit, else one line saying by how much it is exceeded."""
         if self.within:
             return None
-        return (f"mission time {self.duration_s:,.0f} s exceeds mission.time_limit_s = "
-                f"{self.time_limit_s:,.0f} s")
+        return (f"mission time {self.duration_s:,.6g} s exceeds mission.time_limit_s = "
+                f"{self.time_limit_s:,.6g} s")
 
 
 def check_time_limit(duration_s: float, time_limit_s: float | None) -> TimeLimitCheck:

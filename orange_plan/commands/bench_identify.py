@@ -57,14 +57,13 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
         summarise_calibration,
     )
     from orange_plan.errors import InputError
+    from orange_plan.paths import require_folder
 
     names = _split(only) or list(CALIBRATION_CASES)
     unknown = [n for n in names if n not in CALIBRATION_CASES]
     if unknown:
         raise InputError(f"unknown dataset '{unknown[0]}'; known: {', '.join(CALIBRATION_CASES)}")
-    data = data if data is not None else _default_data()
-    if not data.is_dir():
-        raise InputError(f"{data}: data folder not found (give --data)")
+    data = require_folder(data, "--data") if data is not None else _default_data()
     scenarios = _scenarios(scenarios)
     with bar(count_runs(data, names), "held-out runs", wanted(as_json)) as tick:
         rows = calibration_benchmark(data, scenarios, names, progress=tick)

@@ -11,6 +11,7 @@ from rich.table import Table
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
 from orange_plan.commands.bench_identify import DataOpt, ScenariosOpt, _scenarios
 from orange_plan.errors import InputError
+from orange_plan.paths import require_folder
 from orange_plan.progress import bar, wanted
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports regenerated from one command.")
@@ -39,9 +40,9 @@ def paper_cmd(
         raise InputError(f"--trials = {trials} must be >= 2 (a standard deviation needs two)")
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"-o {out_dir}: exists and is not a folder")
-    if data is not None and not data.is_dir():
-        raise InputError(f"--data {data}: folder not found")
-    if data is None:
+    if data is not None:
+        require_folder(data, "--data")
+    else:
         from orange_plan.examples import find_dir
 
         data = find_dir("data")

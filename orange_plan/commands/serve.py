@@ -12,6 +12,7 @@ import typer
 
 from orange_plan.cli import app, handles_errors
 from orange_plan.errors import InputError
+from orange_plan.paths import require_folder
 
 
 @app.command("serve")
@@ -44,8 +45,8 @@ def serve_cmd(
     token = os.environ.get(TOKEN_ENV)
     check_bind(host, token)
     for folder, what in ((scenarios, "--scenarios"), (maps, "--maps")):
-        if folder is not None and not folder.is_dir():
-            raise InputError(f"{what} {folder}: not a folder")
+        if folder is not None:
+            require_folder(folder, what)
     for folder, kind in ((scenarios, "scenarios"), (maps, "maps")):
         _say_where(folder, kind)
     service = create_app(db, token=token, scenarios_dir=scenarios, maps_dir=maps,
