@@ -107,6 +107,8 @@ def test_the_service_says_validation_problems_in_its_own_words(tmp_path):
     assert detail == 'n_vertices: expected an integer, got "many"'
     detail = client.post("/missions", json={"scenario": "x", "n_vertices": 1}).json()["detail"]
     assert detail == "n_vertices: must be >= 50"
+    detail = client.post(f"/missions/{mission}/telemetry", json={"samples": []}).json()["detail"]
+    assert detail == "samples: needs at least 1 item"
 
 
 def test_numpy_scalars_are_shown_as_plain_numbers(tmp_path):

@@ -415,6 +415,11 @@ def in_our_words(problem: dict) -> str:
     for key, word in (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<")):
         if key in limits:
             return f"must be {word} {limits[key]}"
+    unit = "character" if kind.startswith("string") else "item"
+    for key, word in (("min_length", "needs at least"), ("max_length", "takes at most")):
+        if key in limits:
+            n = limits[key]
+            return f"{word} {n} {unit}{'' if n == 1 else 's'}"
     return str(problem.get("msg", "invalid"))
 
 
