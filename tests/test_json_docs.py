@@ -41,9 +41,9 @@ def documented(command: str) -> tuple[set[str], set[str]]:
     """(always, conditional) key paths of ``command``'s section: the backticked names of the
     first column of its key table; a ``*`` after a name marks it conditional."""
     text = DOC.read_text(encoding="utf-8")
-    heading = re.search(rf"^## `orange-plan {re.escape(command)}[ `].*$", text, flags=re.M)
+    heading = re.search(rf"^##+ `orange-plan {re.escape(command)}[ `].*$", text, flags=re.M)
     assert heading, f"docs/json.md has no section for {command}"
-    section = text[heading.end():].split("\n## ", 1)[0]
+    section = re.split(r"\n#{2,} ", text[heading.end():], maxsplit=1)[0]
     always, conditional = set(), set()
     for row in re.findall(r"^\| ([^|]+) \|", section, flags=re.M):
         for name, star in re.findall(r"`([^`]+)`(\\?\*)?", row):
@@ -99,13 +99,20 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
     out["calibrate"] = _json("calibrate", rec, "--scenario", yard, "-o", d / "fit.toml")
     out["diagnose"] = _json("diagnose", rec, "--scenario", yard, "-o", d / "diag.toml")
     out["convert"] = _json("convert", write_ulog(d / "drive.ulg"), "-o", d / "drive.csv")
+    out["bench reach"] = _json("bench", "reach", world, "--repeats", "1", "--vertices", "200",
+                               "--bitstar-s", "0")
+    out["bench replan"] = _json("bench", "replan", world, "--replans", "2", "--vertices", "300")
+    out["bench diagnose"] = _json("bench", "diagnose", "--seeds", "1", "--duration-s", "60",
+                                  "--rate-hz", "1", "--only", "null-ground")
+    out["bench concealed"] = _json("bench", "concealed", "--seeds", "1", "--duration-s", "60",
+                                   "--rate-hz", "1", "--only", "null-ground")
     out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
                           d / "plan.plan")
     return out
 
 
 COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
-            "export"]
+            "export", "bench reach", "bench replan", "bench diagnose", "bench concealed"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
