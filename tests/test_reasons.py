@@ -64,7 +64,7 @@ def test_each_interface_names_the_start_its_own_way(tmp_path):
     assert str(python_api.value).startswith("start_xy (500, 500) m is outside")
     with pytest.raises(InputError) as energy:
         prepare_reach(load_context(scenario), None, 1e12, n_vertices=100)
-    assert str(energy.value).startswith("energy_used_J = 1e+12 J")
+    assert str(energy.value).startswith("energy_used_J = 1e+12 must be in")
     code, _, err = run_cli("reach", scenario, "--from", "500,500", "--vertices", "100")
     assert code == 2 and "--from (500, 500) m is outside" in err
 

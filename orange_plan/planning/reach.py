@@ -188,10 +188,10 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
     """
     available = ctx.scenario.battery.usable_J
     if not (np.isfinite(energy_used_J) and 0.0 <= energy_used_J <= available):
-        raise NamedInputError("energy_used_J", f"{{name}} = {float(energy_used_J):g} J must be "
+        raise NamedInputError("energy_used_J", f"{{name}} = {float(energy_used_J):g} must be "
                               f"in [0, {available:.6g}] J (the usable battery energy)")
     if not (np.isfinite(time_used_s) and time_used_s >= 0.0):
-        raise NamedInputError("time_used_s", f"{{name}} = {float(time_used_s):g} s must be a "
+        raise NamedInputError("time_used_s", f"{{name}} = {float(time_used_s):g} must be a "
                               "finite time >= 0 s")
     if start_xy is not None:
         start_xy = np.asarray(start_xy, float).reshape(2)
