@@ -106,13 +106,15 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
                                   "--rate-hz", "1", "--only", "null-ground")
     out["bench concealed"] = _json("bench", "concealed", "--seeds", "1", "--duration-s", "60",
                                    "--rate-hz", "1", "--only", "null-ground")
+    out["bench online"] = _json("bench", "online", "--seeds", "1", "--only", "rusti_v1_box")
     out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
                           d / "plan.plan")
     return out
 
 
 COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
-            "export", "bench reach", "bench replan", "bench diagnose", "bench concealed"]
+            "export", "bench reach", "bench replan", "bench online", "bench diagnose",
+            "bench concealed"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
