@@ -107,6 +107,8 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
     out["bench concealed"] = _json("bench", "concealed", "--seeds", "1", "--duration-s", "60",
                                    "--rate-hz", "1", "--only", "null-ground")
     out["bench online"] = _json("bench", "online", "--seeds", "1", "--only", "rusti_v1_box")
+    out["bench service"] = _json("bench", "service", "--seconds", "1", "--repeats", "1",
+                                 "--robots", "1", "--vertices", "100")
     out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
                           d / "plan.plan")
     return out
@@ -114,7 +116,7 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
 
 COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
             "export", "bench reach", "bench replan", "bench online", "bench diagnose",
-            "bench concealed"]
+            "bench concealed", "bench service"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
