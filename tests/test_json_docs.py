@@ -17,6 +17,7 @@ from conftest import REPO, run_cli, write_scenario
 from logbuilders import write_ulog
 from planning_worlds import write_world
 from test_export import with_origin
+from test_sweep import write_sweep
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -109,6 +110,8 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
     out["bench online"] = _json("bench", "online", "--seeds", "1", "--only", "rusti_v1_box")
     out["bench service"] = _json("bench", "service", "--seconds", "1", "--repeats", "1",
                                  "--robots", "1", "--vertices", "100")
+    sweep = write_sweep(d / "yard", grid={"battery.rated_energy_Wh": [10.0]}, seeds=1)
+    out["sweep"] = _json("sweep", sweep, "-o", d / "sweep.parquet", "--workers", "1")
     out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
                           d / "plan.plan")
     return out
@@ -116,7 +119,7 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
 
 COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
             "export", "bench reach", "bench replan", "bench online", "bench diagnose",
-            "bench concealed", "bench service"]
+            "bench concealed", "bench service", "sweep"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
