@@ -36,8 +36,11 @@ def _near(folder: Path, kind: str) -> list[Path]:
 def candidate_dirs(kind: str) -> list[Path]:
     """Folders that may hold ``kind`` (``scenarios``, ``maps`` or ``data``), in look-up order."""
     prefixes = [Path(sys.prefix), Path(site.getuserbase())]
-    found = [*_near(Path.cwd(), kind), *(p.joinpath(*SHARE, kind) for p in prefixes),
-             *_near(CHECKOUT, kind)]
+    try:
+        here = _near(Path.cwd(), kind)
+    except FileNotFoundError:  # the working folder was deleted under us: nothing there
+        here = []
+    found = [*here, *(p.joinpath(*SHARE, kind) for p in prefixes), *_near(CHECKOUT, kind)]
     return list(dict.fromkeys(p.absolute() for p in found))  # once each, in order
 
 
