@@ -26,7 +26,7 @@ except ImportError:  # pragma: no cover - older typer runs on click itself
     from click import exceptions as click_exc
     from click.globals import get_current_context
 
-from orange_plan.errors import InputError, OrangeError
+from orange_plan.errors import InputError, NamedInputError, OrangeError, plain_message
 
 
 class OneLineErrors(TyperGroup):
@@ -36,6 +36,7 @@ class OneLineErrors(TyperGroup):
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
              **extra):
+        plain_help(self)
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, False, **extra)
         try:
@@ -50,6 +51,37 @@ class OneLineErrors(TyperGroup):
         except typer.Abort:
             fail("aborted", 1)
         sys.exit(rv if isinstance(rv, int) else 0)
+
+
+HELP_OPTION_NAMES = ["--help"]
+"""The help option's name in every command (click's default; no command changes it)."""
+
+
+def plain_help(command) -> None:
+    """Make ``command``'s help, and its subcommands', print as written.
+
+    Help texts are plain text, not rich markup: a unit such as ``[s]`` (strike-through in
+    rich markup) or ``[Hz]`` would otherwise vanish, so every bracket is escaped here, once,
+    for every option, argument and docstring. A boolean flag takes no value, so it is shown
+    without typer's ``<bool>`` type label.
+    """
+    from types import SimpleNamespace
+
+    from rich.markup import escape
+
+    if getattr(command, "_plain_help", False):
+        return
+    command._plain_help = True
+    if command.help:
+        command.help = escape(command.help)
+    helper = command.get_help_option(SimpleNamespace(help_option_names=HELP_OPTION_NAMES))
+    for param in [*command.params, *([helper] if helper is not None else [])]:
+        if getattr(param, "help", None):
+            param.help = escape(param.help)
+        if getattr(param, "is_flag", False):
+            param.metavar = ""
+    for sub in getattr(command, "commands", {}).values():
+        plain_help(sub)
 
 
 def _subcommand(ctx) -> str:
@@ -68,8 +100,35 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     help="ORangE mission planner: operational range, reachability and energy-aware plans.",
 )
-out = Console()
-err = Console(stderr=True)
+
+
+class WholeWhenPiped(Console):
+    """A console that, when its output is not a terminal (a pipe, a file, a test runner),
+    widens itself to each printed table's natural width: a number is never cut to ``100.…``
+    or wrapped because an unknown terminal is assumed 80 columns wide. On a terminal it
+    behaves as rich does (fits the window)."""
+
+    def print(self, *objects, **kwargs) -> None:
+        if self.is_terminal or self._width is not None:
+            super().print(*objects, **kwargs)
+            return
+        from rich.measure import Measurement
+
+        wide = self.options.update(width=PIPED_MAX_WIDTH)
+        natural = max((Measurement.get(self, wide, o).maximum for o in objects
+                       if not isinstance(o, str)), default=0)
+        self._width = max(self.size.width, natural)
+        try:
+            super().print(*objects, **kwargs)
+        finally:
+            self._width = None
+
+
+PIPED_MAX_WIDTH = 1000
+"""Widest a table is printed when the output is not a terminal [characters]."""
+
+out = WholeWhenPiped()
+err = WholeWhenPiped(stderr=True)
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
 SCENARIO_HELP = ("Scenario TOML file (robot, losses, battery, ancillary, mission, environment; "
@@ -163,13 +222,18 @@ def default_scenario() -> Path:
     return examples_dir("scenarios", "a SCENARIO argument") / "kiwibot_campus.toml"
 
 
+OPTION_NAMES = {"start_xy": "--from", "energy_used_J": "--energy-used-J",
+                "time_used_s": "--time-used-s"}
+"""The CLI option that gives each value a ``NamedInputError`` may name."""
+
+
 class CommandFailed(SystemExit):
     """Raised after the error line has been printed."""
 
 
 def fail(message: str, code: int) -> None:
     """Print one line on stderr and exit with ``code``."""
-    first_line = " ".join(str(message).split())
+    first_line = plain_message(message)
     print(f"orange-plan: error: {first_line}", file=sys.stderr)
     raise CommandFailed(code)
 
@@ -192,6 +256,8 @@ def handles_errors(fn):
             check_numbers(kwargs)
             with _one_line_warnings(), _stdout_for_json(json_mode):
                 return fn(*args, **kwargs)
+        except NamedInputError as exc:
+            fail(exc.named(OPTION_NAMES), 2)
         except InputError as exc:
             fail(str(exc), 2)
         except OrangeError as exc:

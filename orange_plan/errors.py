@@ -8,15 +8,44 @@ errors are internal failures (exit code 1).
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable
+import re
+from collections.abc import Iterable, Mapping
 
 
 class OrangeError(Exception):
-    """Base class of every error raised on purpose by orange-plan."""
+    """Base class of every error raised on purpose by orange-plan.
+
+    A message shows numbers as a person writes them: numpy 2's scalar repr
+    (``np.float64(nan)``, from a ``{value!r}`` of a numpy value) is reduced to the value.
+    """
+
+    def __init__(self, *args):
+        super().__init__(*(NUMPY_REPR.sub(r"\1", a) if isinstance(a, str) else a for a in args))
 
 
 class InputError(OrangeError, ValueError):
     """Bad user input: a file, a value or an argument. The message names the problem."""
+
+
+class NamedInputError(InputError):
+    """Bad input whose message names a value the caller gave, which each interface names its
+    own way: the CLI by its option (``--from``), the HTTP service by its field, the Python API
+    by its argument (``start_xy``, what ``str()`` shows).
+
+    Parameters
+    ----------
+    argument : the Python argument that holds the value (the key of ``named``'s mapping)
+    template : the message, with ``{name}`` where the value's name goes
+    """
+
+    def __init__(self, argument: str, template: str):
+        self.argument = argument
+        self.template = template
+        super().__init__(template.format(name=argument))
+
+    def named(self, names: Mapping[str, str]) -> str:
+        """The message with the value named by ``names[argument]`` (else the argument)."""
+        return NUMPY_REPR.sub(r"\1", self.template.format(name=names.get(self.argument, self.argument)))
 
 
 class ScenarioError(InputError):
@@ -39,3 +68,12 @@ def close_match_hint(name: str, allowed: Iterable[str]) -> str:
     """Return ``" (did you mean 'x'?)"`` for the closest allowed name, or ``""``."""
     matches = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.6)
     return f" (did you mean '{matches[0]}'?)" if matches else ""
+
+
+NUMPY_REPR = re.compile(r"\bnp\.(?:float|int|uint|complex|bool|str_|bytes_)\w*\((.*?)\)")
+"""numpy 2's repr of a scalar (``np.float64(nan)``): a message shows the bare value."""
+
+
+def plain_message(exc: BaseException | str) -> str:
+    """One line for a person: whitespace collapsed, numpy's scalar wrappers dropped."""
+    return NUMPY_REPR.sub(r"\1", " ".join(str(exc).split()))

@@ -35,8 +35,14 @@ class TimeLimitCheck:
         """None within the limit, else one line saying by how much it is exceeded."""
         if self.within:
             return None
-        return (f"mission time {self.duration_s:,.0f} s exceeds mission.time_limit_s = "
-                f"{self.time_limit_s:,.0f} s")
+        return (f"mission time {_seconds(self.duration_s)} s exceeds mission.time_limit_s = "
+                f"{_seconds(self.time_limit_s)} s")
+
+
+def _seconds(value: float) -> str:
+    """Whole seconds with thousands separators; a value under 10 s with its own digits (a
+    0.0001 s limit must not read as 0 s)."""
+    return f"{value:,.0f}" if abs(value) >= 10 else f"{value:.3g}"
 
 
 def check_time_limit(duration_s: float, time_limit_s: float | None) -> TimeLimitCheck:

@@ -82,6 +82,27 @@ def _nearest_existing(folder: Path) -> Path:
     return folder
 
 
+def file_problem(path: Path, label: str, what: str) -> str | None:
+    """Why ``path`` (written ``label`` where it was named) is not a readable ``what`` file,
+    saying where it looked; None when it is a file."""
+    if path.is_file():
+        return None
+    where = path.absolute()
+    if path.is_dir():
+        return f"'{label}' is a folder ({where}); give the {what} file itself"
+    return f"'{label}' not found (looked for {where})"
+
+
+def require_folder(path: Path, option: str) -> Path:
+    """``path`` if it is a folder; else one InputError naming ``option``: a file where a folder
+    is needed, or not found (with where it looked)."""
+    if path.is_dir():
+        return path
+    if path.exists():
+        raise InputError(f"{option} {path}: is a file; give a folder")
+    raise InputError(f"{option} {path}: folder not found (looked for {path.absolute()})")
+
+
 def require_file(path: str | Path, what: str, error: type[InputError] = InputError) -> Path:
     """Return ``path`` if it is an existing file; else one ``error`` line saying which:
     not found, or a folder where a file is needed."""

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
-from orange_plan.paths import require_file
+from orange_plan.paths import file_problem, require_file
 from orange_plan.physics.battery import Battery, Losses
 from orange_plan.physics.terms import EXTRA_TERM_IDS, model_coefficient_names
 from orange_plan.physics.wind import wind_xy_mps
@@ -277,8 +277,9 @@ def scenario_from_dict(data: Mapping[str, Any], path: Path) -> Scenario:
     if not isinstance(data["map"], str):
         raise ScenarioError(f"{where}: map must be a path string, got {data['map']!r}")
     map_path = (path.parent / data["map"]).resolve()
-    if not map_path.is_file():
-        raise ScenarioError(f"{where}: map file '{data['map']}' not found")
+    problem = file_problem(map_path, data["map"], "map GeoJSON")
+    if problem:
+        raise ScenarioError(f"{where}: map file {problem}")
 
     values = {sec: _numbers(data, sec, where) for sec in NUMBER_SCHEMA}
     robot_tbl = data.get("robot", {})

@@ -109,7 +109,7 @@ def test_calibrate_a_real_bmw_trip(tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["bench", "online", "--seeds", "0"], "--seeds = 0 must be >= 1"),
     (["bench", "calibration", "--only", "husky"], "unknown dataset 'husky'"),
-    (["bench", "calibration", "--data", "no/such/folder"], "data folder not found"),
+    (["bench", "calibration", "--data", "no/such/folder"], "folder not found"),
 ])
 def test_bench_identify_bad_input(args, message):
     code, stdout, stderr = run_cli(*args)

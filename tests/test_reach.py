@@ -114,9 +114,9 @@ def test_fast_points_agree_with_exact_goals(reach):
 
 
 def test_bad_start_and_energy(world):
-    with pytest.raises(InputError, match="--from"):
+    with pytest.raises(InputError, match=r"^start_xy "):  # the Python API names its argument
         prepare_reach(world, start_xy=(12.0, 10.0), n_vertices=50)
-    with pytest.raises(InputError, match="--energy-used-J"):
+    with pytest.raises(InputError, match=r"^energy_used_J = "):
         prepare_reach(world, energy_used_J=-1.0, n_vertices=50)
 
 

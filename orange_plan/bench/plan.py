@@ -231,15 +231,15 @@ class ScenarioSpec:
 
 
 def repo_scenario(name: str) -> Path:
-    """``scenarios/NAME.toml`` of the repository (or ``name`` itself if it is a file)."""
-    import orange_plan
+    """``NAME.toml`` of the example scenarios (or ``name`` itself if it is a file)."""
+    from orange_plan.examples import examples_dir
 
     if Path(name).suffix == ".toml" and Path(name).is_file():
         return Path(name)
-    path = Path(orange_plan.__file__).resolve().parents[1] / "scenarios" / f"{name}.toml"
+    path = examples_dir("scenarios", "a .toml path in --scenarios") / f"{name}.toml"
     if not path.is_file():
-        raise InputError(f"--scenarios: no scenario '{name}' (scenarios/{name}.toml) and no such "
-                         "file; use a shipped name, a .toml path or 'random'")
+        raise InputError(f"--scenarios: no scenario '{name}' ({path}) and no such file; use a "
+                         "shipped name, a .toml path or 'random'")
     return path
 
 

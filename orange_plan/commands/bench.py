@@ -198,7 +198,7 @@ def load_planner(spec: str):
 @bench_app.command("service")
 @handles_errors
 def bench_service_cmd(
-    seconds: Annotated[float, typer.Option(help="Timed load per repeat \\[s].")] = 20.0,
+    seconds: Annotated[float, typer.Option(help="Timed load per repeat [s].")] = 20.0,
     repeats: Annotated[int, typer.Option(help="Repeats (medians reported).")] = 3,
     robots: Annotated[int, typer.Option(help="Missions posting telemetry at once.")] = 20,
     batch: Annotated[int, typer.Option(help="Samples per telemetry batch.")] = 50,

@@ -17,7 +17,8 @@ from orange_plan.progress import bar, wanted
 
 DataOpt = Annotated[Path | None, typer.Option(
     "--data", help="Folder with the real data sets' borealtc/ and tum_bmw_i3/ folders (not "
-                   "shipped with the package; default: ../shared/data beside a source checkout).")]
+                   "shipped with the package; default: the first of ./data, ../shared/data and "
+                   "<prefix>/share/orange-plan/data that exists).")]
 ScenariosOpt = Annotated[Path | None, typer.Option(
     "--scenarios", help="Folder of scenario TOML files (default: the shipped examples).")]
 SeedsOpt = Annotated[int, typer.Option("--seeds", help="Simulated runs per scenario.")]
@@ -33,20 +34,11 @@ def _scenarios(folder: Path | None) -> Path:
     return folder if folder is not None else examples_dir("scenarios", "--scenarios")
 
 
-DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
-"""Where a source checkout of this workplace keeps the real data sets."""
-
-
 def _default_data() -> Path:
-    """``DEFAULT_DATA`` when it exists; otherwise --data is required."""
-    from orange_plan.errors import InputError
+    """The data sets' folder by the examples' look-up rule; otherwise --data is required."""
+    from orange_plan.examples import examples_dir
 
-    data = DEFAULT_DATA
-    if not data.is_dir():
-        raise InputError("bench calibration needs the real data sets (BorealTC, TUM BMW i3), "
-                         "which are not shipped with the package: give --data DIR, the folder "
-                         "holding borealtc/ and tum_bmw_i3/")
-    return data
+    return examples_dir("data", "--data")
 
 
 def _split(text):
@@ -65,14 +57,13 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
         summarise_calibration,
     )
     from orange_plan.errors import InputError
+    from orange_plan.paths import require_folder
 
     names = _split(only) or list(CALIBRATION_CASES)
     unknown = [n for n in names if n not in CALIBRATION_CASES]
     if unknown:
         raise InputError(f"unknown dataset '{unknown[0]}'; known: {', '.join(CALIBRATION_CASES)}")
-    data = data if data is not None else _default_data()
-    if not data.is_dir():
-        raise InputError(f"{data}: data folder not found (give --data)")
+    data = require_folder(data, "--data") if data is not None else _default_data()
     scenarios = _scenarios(scenarios)
     with bar(count_runs(data, names), "held-out runs", wanted(as_json)) as tick:
         rows = calibration_benchmark(data, scenarios, names, progress=tick)

@@ -9,9 +9,9 @@ import typer
 from rich.table import Table
 
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
-from orange_plan.commands.bench_identify import DEFAULT_DATA, DataOpt, ScenariosOpt, _scenarios
+from orange_plan.commands.bench_identify import DataOpt, ScenariosOpt, _scenarios
 from orange_plan.errors import InputError
-from orange_plan.paths import check_output
+from orange_plan.paths import check_output, require_folder
 from orange_plan.progress import bar, wanted
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports regenerated from one command.")
@@ -41,9 +41,12 @@ def paper_cmd(
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"-o {out_dir}: exists and is not a folder")
     check_output(out_dir / "report.md", "-o")  # the folder can be made and written
-    if data is not None and not data.is_dir():
-        raise InputError(f"--data {data}: folder not found")
-    data = data if data is not None else (DEFAULT_DATA if DEFAULT_DATA.is_dir() else None)
+    if data is not None:
+        require_folder(data, "--data")
+    else:
+        from orange_plan.examples import find_dir
+
+        data = find_dir("data")
     scenarios = _scenarios(scenarios)
     with bar(total_items(trials, data), "report paper: runs", wanted(as_json)) as tick:
         summary = generate(out_dir, scenarios, data, trials, seed, tick)
@@ -51,6 +54,10 @@ def paper_cmd(
         print_json(summary | {"out": str(out_dir)})
         return
     out.print(_headline(summary))
+    if data is None:
+        from orange_plan.report.paper import missing_data_note
+
+        out.print(f"section 5 (real data) not run: {missing_data_note()}", markup=False)
     out.print(f"report: {out_dir / 'report.md'} ({len(summary['files']) - 2} figures, "
               f"{summary['elapsed_s']:.0f} s)")
 

@@ -13,6 +13,7 @@ import typer
 
 from orange_plan.cli import app, handles_errors
 from orange_plan.errors import InputError
+from orange_plan.paths import require_folder
 
 
 @app.command("serve")
@@ -25,12 +26,13 @@ def serve_cmd(
         help="SQLite file holding missions and their acknowledged telemetry.")] = Path(
         "orange_plan.sqlite"),
     scenarios: Annotated[Path | None, typer.Option(
-        help="Folder of scenarios a mission may name (default: the repository's "
-             "scenarios/).")] = None,
+        help="Folder of scenarios a mission may name (default: ./scenarios, else the "
+             "installed examples).")] = None,
     maps: Annotated[Path | None, typer.Option(
-        help="Folder of maps a scenario may name (default: the repository's maps/).")] = None,
+        help="Folder of maps a scenario may name (default: ./maps, else the installed "
+             "examples).")] = None,
     max_body_bytes: Annotated[int, typer.Option(
-        min=1024, help="Largest request body accepted \\[bytes]; larger ones get 413.")]
+        min=1024, help="Largest request body accepted [bytes]; larger ones get 413.")]
         = 8 * 1024 * 1024,
 ) -> None:
     """Serve the replanning API (docs at /docs, OpenAPI at /openapi.json) and the operator
@@ -45,10 +47,12 @@ def serve_cmd(
     token = os.environ.get(TOKEN_ENV)
     check_bind(host, token)
     for folder, what in ((scenarios, "--scenarios"), (maps, "--maps")):
-        if folder is not None and not folder.is_dir():
-            raise InputError(f"{what} {folder}: not a folder")
+        if folder is not None:
+            require_folder(folder, what)
     check_output(db, "--db")
     check_port_free(host, port)
+    for folder, kind in ((scenarios, "scenarios"), (maps, "maps")):
+        _say_where(folder, kind)
     service = create_app(db, token=token, scenarios_dir=scenarios, maps_dir=maps,
                          limits=Limits(max_body_bytes=max_body_bytes))
     uvicorn.run(service, host=host, port=port, log_level="info",
@@ -82,6 +86,17 @@ def check_port_free(host: str, port: int) -> None:
                     f"--port {port}: already in use on {host} (another server runs there; "
                     "pick another --port)" if busy else
                     f"--host {host} --port {port}: cannot bind ({exc.strerror or exc})") from None
+
+
+def _say_where(folder: Path | None, kind: str) -> None:
+    """Tell the operator which folder names resolve in (or where none was found)."""
+    from orange_plan.cli import err
+    from orange_plan.examples import find_dir, looked_in
+
+    folder = folder or find_dir(kind)
+    err.print(f"{kind}: {folder}" if folder is not None else
+              f"{kind}: none found (looked in {looked_in(kind)}); missions must send their "
+              f"scenario as TOML text, or give --{kind} DIR", markup=False)
 
 
 def is_loopback(host: str) -> bool:

@@ -16,7 +16,7 @@ from orange_plan.progress import bar, wanted
 @handles_errors
 def sweep_cmd(
     sweep_file: Annotated[Path, typer.Argument(
-        help="Sweep TOML: scenarios, \\[grid] table of dotted scenario keys, seeds (docs/formats.md).")],
+        help="Sweep TOML: scenarios, [grid] table of dotted scenario keys, seeds (docs/formats.md).")],
     output: Annotated[Path, typer.Option(
         "-o", "--output", help="Results Parquet, one row per run; an existing one is resumed "
                                "(finished runs are not redone).")],

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, NamedInputError
 from orange_plan.mission import TimeLimitCheck, check_time_limit
 from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
 from orange_plan.planning.paths import clean_polyline, dedupe, evaluate_path, path_gradient
@@ -164,6 +164,19 @@ def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
                             accel_max_mps2=accel))
 
 
+def check_start_free(world, xy) -> None:
+    """Refuse a start position outside the boundary or in an obstacle / no-go zone.
+
+    Raises
+    ------
+    NamedInputError
+        On ``start_xy`` (each interface names it: ``--from``, the telemetry's position).
+    """
+    if not bool(world.is_free(*xy)):
+        raise NamedInputError("start_xy", f"{{name}} ({xy[0]:g}, {xy[1]:g}) m is outside the "
+                              "boundary or inside an obstacle / no-go zone")
+
+
 def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
                   seed: int = 0, speed_mps: float | None = None,
                   terrain: TerrainRasters | None = None,
@@ -190,15 +203,14 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
     """
     available = ctx.scenario.battery.usable_J
     if not (np.isfinite(energy_used_J) and 0.0 <= energy_used_J <= available):
-        raise InputError(f"--energy-used-J = {energy_used_J:g} must be in [0, {available:.6g}] J "
-                         "(the usable battery energy)")
+        raise NamedInputError("energy_used_J", f"{{name}} = {float(energy_used_J):g} must be "
+                              f"in [0, {available:.6g}] J (the usable battery energy)")
     if not (np.isfinite(time_used_s) and time_used_s >= 0.0):
-        raise InputError(f"--time-used-s = {time_used_s:g} must be a finite time >= 0 s")
+        raise NamedInputError("time_used_s", f"{{name}} = {float(time_used_s):g} must be a "
+                              "finite time >= 0 s")
     if start_xy is not None:
         start_xy = np.asarray(start_xy, float).reshape(2)
-        if not bool(ctx.world.is_free(*start_xy)):
-            raise InputError(f"--from ({start_xy[0]:g}, {start_xy[1]:g}) m is outside the boundary "
-                             "or inside an obstacle / no-go zone")
+        check_start_free(ctx.world, start_xy)
     terrain = build_rasters(ctx.world) if terrain is None else terrain
     fast, exact = cost_contexts(ctx, terrain, speed_mps, with_gradient)
     roadmap = build_roadmap(fast, n_vertices, seed)

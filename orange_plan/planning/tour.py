@@ -52,6 +52,7 @@ from orange_plan.planning.paths import clean_polyline, cut_path, evaluate_path
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import (
     Reachability,
+    check_start_free,
     home_status,
     prepare_reach,
     query_points,
@@ -330,10 +331,14 @@ def search_tour(ctx, setup: TourSetup, start: StartState, *, t0: float, step=Non
 def _too_small(ctx, reach: Reachability, last_error) -> None:
     """No candidate fits: the request itself is infeasible (exit 2), said in one line."""
     remaining = reach.energy_available_J - reach.energy_used_J
+    head = (f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and "
+            "the reserve kept")
+    if remaining <= 0:
+        raise InputError(f"{head}: the energy used ({reach.energy_used_J / 1e3:,.4g} kJ) "
+                         f"already exceeds the usable {reach.energy_available_J / 1e3:,.4g} kJ")
     detail = f"; the smallest tour was {last_error}" if last_error else ""
     raise InputError(
-        f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and the "
-        f"reserve kept ({remaining / 1e3:,.3g} kJ left of {reach.energy_available_J / 1e3:,.3g}"
+        f"{head} ({remaining / 1e3:,.3g} kJ left of {reach.energy_available_J / 1e3:,.3g}"
         f" kJ): the battery is too small to leave home, or the time limit is too short{detail}")
 
 
@@ -395,9 +400,7 @@ def warm_setup(setup: TourSetup, ctx, start: StartState) -> TourSetup:
                    for c in (reach.fast, reach.exact))
     home = np.asarray(reach.home_xy_m)
     xy = home if start.xy_m is None else np.asarray(start.xy_m, float)
-    if not bool(ctx.world.is_free(*xy)):
-        raise InputError(f"start ({xy[0]:g}, {xy[1]:g}) m is outside the boundary or inside an "
-                         "obstacle / no-go zone")
+    check_start_free(ctx.world, xy)
     roadmap = add_vertices(reach.fast, setup.roadmap, xy[None, :])
     vertex = roadmap.n_vertices - 1
     dist, pred = dijkstra(roadmap.graph(), directed=True, indices=[vertex],
@@ -511,10 +514,6 @@ def tour_setup(ctx, start: StartState, n_vertices: int, seed: int, max_candidate
     covered = (np.zeros(len(grid.xy_m), bool) if start.covered is None
                else _mask(grid, grid.cells_in(start.covered)))
     cands = select_candidates(ctx, reach, grid, covered, max_candidates, _time_left_s(ctx, start))
-    if cands.n == 0:
-        raise InputError(
-            f"{ctx.scenario.name}: no coverage candidate can be visited with the way home and "
-            "the reserve kept: the battery is too small to leave home")
     step(f"energy legs between {cands.n} candidates")
     return _legs(ctx, reach, cands, grid, covered)
 
@@ -527,10 +526,15 @@ def _check_not_boxed_in(ctx) -> None:
     home = shapely.Point(ctx.world.home_xy_m)
     pocket = next((g for g in getattr(free, "geoms", [free]) if g.intersects(home)), None)
     r = ctx.scenario.mission.sensor_radius_m
-    if pocket is not None and pocket.area < np.pi * r**2:
-        raise InputError(f"home is boxed in: the free area around it is {pocket.area:.3g} m^2, "
-                         f"less than one sensor footprint ({np.pi * r**2:.3g} m^2); nothing "
-                         "to explore")
+    if pocket is None or pocket.area >= np.pi * r**2:
+        return
+    if pocket.area >= free.area * (1 - 1e-9):  # nothing walls home in: the footprint is huge
+        raise InputError(f"mission.sensor_radius_m = {r:g} m: one sensor footprint "
+                         f"({np.pi * r**2:.3g} m^2) is larger than the whole free area "
+                         f"({free.area:.3g} m^2); nothing to explore")
+    raise InputError(f"home is boxed in: the free area around it is {pocket.area:.3g} m^2 "
+                     f"(of {free.area:.3g} m^2), less than one sensor footprint "
+                     f"({np.pi * r**2:.3g} m^2); nothing to explore")
 
 
 def _mask(grid, cells) -> np.ndarray:
@@ -572,7 +576,31 @@ def select_candidates(ctx, reach: Reachability, grid, covered, cap: int,
     residual = cands.value_m2(with_lanes, grid)
     pockets = np.flatnonzero(~lane & fits & (residual >= 0.25 * np.pi * r**2))
     pockets = pockets[np.argsort(-score[pockets], kind="stable")[:cap - len(lanes)]]
+    if len(lanes) + len(pockets) == 0:
+        raise InputError(f"{ctx.scenario.name}: no coverage candidate can be visited with the "
+                         "way home and the reserve kept: "
+                         + _why_no_candidate(ctx, reach, cands, trip, value, time_left_s))
     return cands.subset(np.sort(np.r_[lanes, pockets]))
+
+
+def _why_no_candidate(ctx, reach: Reachability, cands: Candidates, trip: np.ndarray,
+                      value: np.ndarray, time_left_s: float) -> str:
+    """Which of energy, time or new area left no candidate, with the figures that show it."""
+    left = reach.energy_available_J - reach.energy_used_J
+    by_energy = np.isfinite(trip) & (trip < left)
+    if not by_energy.any():
+        cheapest = np.min(trip[np.isfinite(trip)], initial=np.inf)
+        need = (f"the cheapest round trip to one needs {cheapest / 1e3:,.3g} kJ"
+                if np.isfinite(cheapest) else "none can be reached")
+        return (f"the battery is too small to leave home ({need}; {left / 1e3:,.3g} kJ left of "
+                f"{reach.energy_available_J / 1e3:,.3g} kJ)")
+    by_time = _within_time(ctx, reach, cands, time_left_s)
+    if not (by_energy & by_time).any():
+        quickest = np.min(_round_trip_s(ctx, reach, cands)[by_energy])
+        return (f"the time limit is too short (mission.time_limit_s = "
+                f"{ctx.scenario.mission.time_limit_s:g} s leaves {time_left_s:g} s; the quickest "
+                f"round trip to one takes {quickest:,.3g} s at v_max)")
+    return "every area within reach is already covered"
 
 
 def drivable_m(ctx, reach: Reachability, time_left_s: float) -> float:
@@ -588,11 +616,15 @@ def drivable_m(ctx, reach: Reachability, time_left_s: float) -> float:
 def _within_time(ctx, reach: Reachability, cands: Candidates, time_left_s: float) -> np.ndarray:
     if not np.isfinite(time_left_s):
         return np.ones(cands.n, bool)
+    return _round_trip_s(ctx, reach, cands) <= time_left_s
+
+
+def _round_trip_s(ctx, reach: Reachability, cands: Candidates) -> np.ndarray:
+    """Least time of start -> candidate -> home: straight lines at v_max [s] (a lower bound)."""
     start, home = np.asarray(reach.start_xy_m), np.asarray(reach.home_xy_m)
     dist = (np.hypot(*(cands.start_xy_m - start).T) + cands.length_m
             + np.hypot(*(cands.end_xy_m - home).T))
-    fastest = ctx.scenario.robot.v_max_mps * ctx.conditions.duty_cycle
-    return dist / fastest <= time_left_s
+    return dist / (ctx.scenario.robot.v_max_mps * ctx.conditions.duty_cycle)
 
 
 def round_trip_J(reach: Reachability, cands: Candidates) -> np.ndarray:

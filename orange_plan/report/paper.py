@@ -54,8 +54,7 @@ def generate(out_dir: Path, scenario_dir: Path, data_dir: Path | None, trials: i
     else:
         sections["real_data"] = Section(
             "5. Real-data counterparts: Husky per surface, BMW trips",
-            ["Not run: the real data sets (BorealTC, TUM BMW i3) were not found; give "
-             "`--data DIR`."])
+            [f"Not run: {missing_data_note()}"])
     sections["generalised"] = generalised_note(sections)
     elapsed_s = time.perf_counter() - start
     order = ["rusti_v1", "rusti_v2", "ar_drone", "generalised", "real_data", "wear"]
@@ -68,6 +67,15 @@ def generate(out_dir: Path, scenario_dir: Path, data_dir: Path | None, trials: i
     with atomic_path(out_dir / "report.json", suffix=".json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2, allow_nan=False))
     return summary
+
+
+def missing_data_note() -> str:
+    """Why section 5 is absent: where the data sets were looked for, and the option."""
+    from orange_plan.examples import looked_in
+
+    return ("the real data sets (BorealTC, TUM BMW i3) were not found (looked in "
+            f"{looked_in('data')}); give `--data DIR`, the folder holding borealtc/ and "
+            "tum_bmw_i3/")
 
 
 def generalised_note(sections: dict[str, Section]) -> Section:

@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from orange_plan import __version__
-from orange_plan.errors import InputError, OrangeError
+from orange_plan.errors import InputError, NamedInputError, OrangeError, plain_message
 from orange_plan.service.limits import BodySizeLimit, Limits
 from orange_plan.service.missions import (
     MissionNotFound,
@@ -148,7 +148,7 @@ def reply(obj, status_code: int = 200, media_type: str = "application/json") -> 
 
 
 def one_line(text) -> str:
-    return " ".join(str(text).split())
+    return plain_message(text)
 
 
 def error(status_code: int, detail: str, headers: dict | None = None) -> JSONResponse:
@@ -159,7 +159,8 @@ def _one_line(status_code: int):
     """An exception handler answering ``status_code`` with the exception's message."""
 
     async def handler(request: Request, exc: Exception) -> JSONResponse:
-        return error(status_code, str(exc))
+        named = isinstance(exc, NamedInputError)
+        return error(status_code, exc.named(FIELD_NAMES) if named else str(exc))
 
     return handler
 
@@ -375,6 +376,53 @@ def check_samples(samples: list[dict]) -> None:
                 raise InputError(f"samples[{i}].{key}: expected a number or a string")
 
 
+FIELD_NAMES = {"start_xy": "the robot's position (x_m, y_m of the latest telemetry sample)",
+               "energy_used_J": "the energy used (from the telemetry's power_W)",
+               "time_used_s": "the mission time (t_s of the telemetry)"}
+"""What the service calls each value a ``NamedInputError`` may name (never a CLI option)."""
+
+EXPECTED = {"dict_type": "expected a JSON object", "list_type": "expected a JSON array",
+            "int_type": "expected an integer", "int_parsing": "expected an integer",
+            "int_from_float": "expected an integer", "float_type": "expected a number",
+            "float_parsing": "expected a number", "bool_type": "expected true or false",
+            "bool_parsing": "expected true or false", "string_type": "expected a string",
+            "missing": "missing", "extra_forbidden": "not a field of this request"}
+"""Our words for pydantic's error types (its own text names Python types)."""
+
+GEOMETRY_FIELDS = ("obstacles", "no_go")
+GEOMETRY_HINT = ('a GeoJSON Polygon or MultiPolygon object, e.g. {"type": "Polygon", '
+                 '"coordinates": [[[x, y], ...]]}')
+
+
+def field_path(loc) -> str:
+    """``("body", "obstacles", 0)`` -> ``obstacles[0]``."""
+    parts = [p for p in loc if p != "body"]
+    text = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in parts).lstrip(".")
+    return text or "body"
+
+
+def in_our_words(problem: dict) -> str:
+    """One request-validation problem, said without pydantic's Python vocabulary."""
+    loc = [p for p in problem.get("loc", ()) if p != "body"]
+    kind = problem.get("type", "")
+    if loc and loc[0] in GEOMETRY_FIELDS and kind == "dict_type":
+        return f"expected {GEOMETRY_HINT}"
+    if kind in EXPECTED:
+        got = problem.get("input")
+        shown = "" if kind in ("missing", "extra_forbidden") else f", got {json.dumps(got)[:40]}"
+        return EXPECTED[kind] + shown
+    limits = problem.get("ctx") or {}
+    for key, word in (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<")):
+        if key in limits:
+            return f"must be {word} {limits[key]}"
+    unit = "character" if kind.startswith("string") else "item"
+    for key, word in (("min_length", "needs at least"), ("max_length", "takes at most")):
+        if key in limits:
+            n = limits[key]
+            return f"{word} {n} {unit}{'' if n == 1 else 's'}"
+    return str(problem.get("msg", "invalid"))
+
+
 def _handlers(app: FastAPI) -> None:
     """Every error is JSON ``{"detail": "one line"}``; bad input is 4xx, never 5xx."""
 
@@ -385,9 +433,8 @@ def _handlers(app: FastAPI) -> None:
         if first.get("type") == "json_invalid":
             ctx = first.get("ctx") or {}
             return error(400, f"malformed JSON body: {ctx.get('error', first['msg'])}")
-        loc = ".".join(str(p) for p in first.get("loc", ()) if p != "body") or "body"
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        return error(422, f"{loc}: {first['msg']}{more}")
+        return error(422, f"{field_path(first.get('loc', ()))}: {in_our_words(first)}{more}")
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException):

@@ -32,9 +32,11 @@ class ScenarioSource:
 
 
 def default_folder(kind: str) -> Path:
-    """The repository's ``scenarios/`` or ``maps/``: beside the package, else in the cwd."""
-    beside = Path(__file__).resolve().parents[2] / kind
-    return beside if beside.is_dir() else Path.cwd() / kind
+    """``scenarios/`` or ``maps/`` by the examples' look-up rule (the working folder, then the
+    installed examples); the working folder's when there is none (a library with no names)."""
+    from orange_plan.examples import find_dir
+
+    return find_dir(kind) or Path.cwd() / kind
 
 
 class ScenarioLibrary:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, close_match_hint
+from orange_plan.paths import file_problem
 
 TOP_KEYS = ("name", "scenarios", "seeds", "truth", "vertices", "sample_rate_Hz", "grid")
 TRUTH_KINDS = ("calibration", "model")
@@ -133,8 +134,9 @@ def _scenario_files(value, path: Path) -> list[tuple[str, Path, dict]]:
     out = []
     for label in value:
         file = (path.parent / label).resolve()
-        if not file.is_file():
-            raise InputError(f"{where}: scenario file '{label}' not found")
+        problem = file_problem(file, label, "scenario TOML")
+        if problem:
+            raise InputError(f"{where}: scenario file {problem}")
         with _named(where, "scenarios"):
             data = read_toml(file, "scenario")
         if isinstance(data.get("map"), str):  # the runs carry the data, not the file's folder

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import MapError
+from orange_plan.paths import file_problem
 
 
 @dataclass(frozen=True)
@@ -60,8 +61,9 @@ def load_elevation(path: Path) -> ElevationRaster:
     MapError
         If the file is missing, unreadable, rotated, or holds no-data cells.
     """
-    if not path.is_file():
-        raise MapError(f"elevation raster '{path.name}' not found next to the map")
+    problem = file_problem(path, path.name, "elevation raster")
+    if problem:
+        raise MapError(f"elevation raster {problem}")
     import rasterio
 
     try:

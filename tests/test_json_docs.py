@@ -1,0 +1,127 @@
+"""docs/json.md lists every key each command's ``--json`` prints, and nothing it never prints.
+
+Each command runs once on small inputs (the yard and world fixtures, a simulated recording,
+the world with a WGS84 origin for export); the keys it prints, recursively (``energy.rated_J``,
+``goals[].x_m``), are compared with the keys its section of docs/json.md lists, both ways.
+A key marked ``*`` in the doc is conditional: it must be documented when printed, but an
+output without it is not an error. ``<name>`` in the doc stands for any key at that level.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+from conftest import REPO, run_cli, write_scenario
+from logbuilders import write_ulog
+from planning_worlds import write_world
+from test_export import with_origin
+from test_sweep import write_sweep
+
+pytestmark = pytest.mark.timeout(300)
+
+DOC = REPO / "docs" / "json.md"
+ROUTE = "x_m,y_m\n1,1\n18,1\n18,4\n1,4\n1,1\n"
+
+
+def printed_paths(obj, prefix: str = "") -> set[str]:
+    """Every key path of a JSON value: ``a.b`` for objects, ``a[].b`` inside lists."""
+    paths: set[str] = set()
+    if isinstance(obj, dict):
+        for key, value in obj.items():
+            path = f"{prefix}.{key}" if prefix else key
+            paths |= {path} | printed_paths(value, path)
+    elif isinstance(obj, list):
+        for item in obj:
+            paths |= printed_paths(item, f"{prefix}[]")
+    return paths
+
+
+def documented(command: str) -> tuple[set[str], set[str]]:
+    """(always, conditional) key paths of ``command``'s section: the backticked names of the
+    first column of its key table; a ``*`` after a name marks it conditional."""
+    text = DOC.read_text(encoding="utf-8")
+    heading = re.search(rf"^##+ `orange-plan {re.escape(command)}[ `].*$", text, flags=re.M)
+    assert heading, f"docs/json.md has no section for {command}"
+    section = re.split(r"\n#{2,} ", text[heading.end():], maxsplit=1)[0]
+    always, conditional = set(), set()
+    for row in re.findall(r"^\| ([^|]+) \|", section, flags=re.M):
+        for name, star in re.findall(r"`([^`]+)`(\\?\*)?", row):
+            (conditional if star else always).add(name)
+    assert always, f"docs/json.md: no keys listed for {command}"
+    return always, conditional
+
+
+def _matches(pattern: str, path: str) -> bool:
+    """``path`` is the documented ``pattern``; ``<name>`` is any one key, and a pattern ending
+    in one also covers what lies under that key."""
+    regex = re.sub(r"<[^>]+>", r"[^.\\[\\]]+", re.escape(pattern))
+    if pattern.endswith(">"):
+        regex += r"(\..+|\[\].*)?"
+    return re.fullmatch(regex, path) is not None
+
+
+def compare(command: str, output: dict) -> None:
+    always, conditional = documented(command)
+    printed = printed_paths(output)
+    patterns = always | conditional
+    undocumented = sorted(p for p in printed if not any(_matches(d, p) for d in patterns))
+    never = sorted(d for d in always if not any(_matches(d, p) for p in printed))
+    assert not undocumented, f"{command} --json prints keys docs/json.md lacks: {undocumented}"
+    assert not never, f"docs/json.md lists {command} keys never printed (mark them *): {never}"
+
+
+def _json(*args) -> dict:
+    code, out, err = run_cli(*args, "--json")
+    assert code == 0, err
+    return json.loads(out)
+
+
+@pytest.fixture(scope="module")
+def outputs(tmp_path_factory) -> dict[str, dict]:
+    """One ``--json`` output per command, on small inputs."""
+    d = tmp_path_factory.mktemp("json")
+    world = with_origin(write_world(d, obstacles=[(10, 5, 14, 25)], time_limit_s=600.0))
+    goals = d / "goals.csv"
+    goals.write_text("x_m,y_m,name\n35,25,far\n12,10,in_box\n", encoding="utf-8")
+    (d / "yard").mkdir()
+    yard = write_scenario(d / "yard")
+    (d / "route.csv").write_text(ROUTE, encoding="utf-8")
+    rec = d / "rec.csv"
+    out = {
+        "range": _json("range", world),
+        "plan": _json("plan", world, "-o", d / "plan.geojson", "--vertices", "300"),
+        "reach": _json("reach", world, "--goals", goals, "--vertices", "200"),
+        "simulate": _json("simulate", yard, d / "route.csv", "-o", rec, "--seed", "1",
+                          "--to-depletion", "--max-duration-s", "300"),
+    }
+    out["predict"] = _json("predict", rec, "--scenario", yard, "--png", d / "p.png")
+    out["calibrate"] = _json("calibrate", rec, "--scenario", yard, "-o", d / "fit.toml")
+    out["diagnose"] = _json("diagnose", rec, "--scenario", yard, "-o", d / "diag.toml")
+    out["convert"] = _json("convert", write_ulog(d / "drive.ulg"), "-o", d / "drive.csv")
+    out["bench reach"] = _json("bench", "reach", world, "--repeats", "1", "--vertices", "200",
+                               "--bitstar-s", "0")
+    out["bench replan"] = _json("bench", "replan", world, "--replans", "2", "--vertices", "300")
+    out["bench diagnose"] = _json("bench", "diagnose", "--seeds", "1", "--duration-s", "60",
+                                  "--rate-hz", "1", "--only", "null-ground")
+    out["bench concealed"] = _json("bench", "concealed", "--seeds", "1", "--duration-s", "60",
+                                   "--rate-hz", "1", "--only", "null-ground")
+    out["bench online"] = _json("bench", "online", "--seeds", "1", "--only", "rusti_v1_box")
+    out["bench service"] = _json("bench", "service", "--seconds", "1", "--repeats", "1",
+                                 "--robots", "1", "--vertices", "100")
+    sweep = write_sweep(d / "yard", grid={"battery.rated_energy_Wh": [10.0]}, seeds=1)
+    out["sweep"] = _json("sweep", sweep, "-o", d / "sweep.parquet", "--workers", "1")
+    out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
+                          d / "plan.plan")
+    return out
+
+
+COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
+            "export", "bench reach", "bench replan", "bench online", "bench diagnose",
+            "bench concealed", "bench service", "sweep"]
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_docs_list_exactly_the_printed_keys(outputs, command):
+    compare(command, outputs[command])
