@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from orange_plan.errors import PlanningError
 from orange_plan.planning.lawnmower import (
     DEFAULT_ANGLES_DEG,
     cumulative_energy_time,
@@ -242,7 +243,10 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
     straight.sort(key=lambda item: item[0], reverse=True)
     joined = []
     for _, angle, name, pieces in straight[:rescore]:
-        xy = join_pieces(home_xy, pieces, detours)[0]
+        try:
+            xy = join_pieces(home_xy, pieces, detours)[0]
+        except PlanningError:  # its last lane end has no way home on this roadmap
+            continue
         joined.append(Sweep(xy, angle, name, score(xy), tried))
     if baseline_xy is not None:
         joined.append(Sweep(np.asarray(baseline_xy, float), math.nan, "baseline",

@@ -152,7 +152,10 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     swept = None
     if sweeps:
         step("complete sweeps at every angle and lane order")
-        swept = sweep_tour(planning_ctx, setup, start, t0=t0, optimise_speed=optimise_speed)
+        try:
+            swept = sweep_tour(planning_ctx, setup, start, t0=t0, optimise_speed=optimise_speed)
+        except PlanningError:  # no sweep joins up on this roadmap: the tour search's answer
+            swept = None
     if toured is None and swept is None:
         raise failure
     return max((p for p in (toured, swept) if p is not None), key=expected_coverage_m2)
@@ -193,7 +196,12 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     home = HomePaths(reach).calibrate(functools.partial(driven_energy_J, reach.exact))
     rm = reach.roadmap
     detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
-    baseline_xy = plan_lawnmower(ctx, reach).xy_m if baseline else None
+    baseline_xy = None
+    if baseline:
+        try:
+            baseline_xy = plan_lawnmower(ctx, reach).xy_m
+        except PlanningError:  # no lawnmower joins up here: the other sweeps still may
+            pass
     sweep = best_sweep(ctx, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
                        1.05 * drivable_m(ctx, reach, time_left))
     if sweep is None:
