@@ -29,6 +29,7 @@ every vertex, not on the heuristic's estimates; a plan is only returned when eve
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time as _time
 from dataclasses import dataclass, field, replace
@@ -197,11 +198,9 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     rm = reach.roadmap
     detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
     baseline_xy = None
-    if baseline:
-        try:
-            baseline_xy = plan_lawnmower(ctx, reach).xy_m
-        except PlanningError:  # no lawnmower joins up here: the other sweeps still may
-            pass
+    # no lawnmower joins up on some roadmaps: the other sweeps still may
+    with contextlib.suppress(PlanningError):
+        baseline_xy = plan_lawnmower(ctx, reach).xy_m if baseline else None
     sweep = best_sweep(ctx, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
                        1.05 * drivable_m(ctx, reach, time_left))
     if sweep is None:
