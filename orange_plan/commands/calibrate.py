@@ -51,11 +51,14 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
     from orange_plan.model_builder import physical_values
     from orange_plan.paths import check_output
     from orange_plan.telemetry.recording import load_recording
+    from orange_plan.telemetry.replay import check_positions_on_map
 
     if output is not None:
         check_output(output, "-o", [".toml"], inputs=[*recordings, scenario])
     ctx = load_context(scenario)
     recs = [load_recording(p) for p in recordings]
+    for rec in recs:
+        check_positions_on_map(rec, ctx.world)
     cal = Calibrator(terms=_split(terms), fixed=_split(fixed) or (), use_prior=not no_prior,
                      grade_window_m=grade_window_m).fit(recs, ctx)
     report = {
