@@ -1,153 +1,35 @@
-"""Mid-mission replanning: telemetry in, a decision out, and a new tour when the world or the
-robot turns out different from the plan.
+"""``MissionSession``: the mission in progress, joining the intake of telemetry, the return
+home, the plan's checks, the homing decision, replans, map updates and the event log.
 
-Problem statement (kept apart from how it is solved): during a mission the robot reports
-samples (time, battery power, position, ...). After each batch the operator needs to know
-whether the robot should
-
-- ``return_home`` now: with what it has measured so far, the way home and its reserve no
-  longer fit the energy left, or getting home is less likely than the reserve promises;
-- ``replan``: the robot can still get home, but the plan it flies was made for another
-  robot or another map (the energy it measures departs from the plan's model, a map update
-  arrived, or the rest of the tour no longer keeps the homing constraint);
-- ``continue`` otherwise;
-
-and, on a replan, a new tour from the current position, energy, time and area already
-sensed, made with the model the telemetry has taught (a head wind or a heavier load
-shrinks it, a lighter one may extend it), in the world with every map update.
-
-Decision rule (``MissionSession.decision``), in this order, with ``E_avail`` the usable
-battery energy (the scenario's, or less when the telemetry's state of charge shows a smaller
-battery: ``identify.soc``), ``E_used`` the measured battery energy so far (sum of ``P dt``),
-``E_home`` the energy of the best roadmap return from the current position evaluated with
-the online model, ``R`` the scenario's reserve for that return and ``sd_home`` its predictive
-standard deviation:
-
-1. ``return_home`` when ``margin = E_avail - E_used - E_home - R < 0``, or the reserve is a
-   confidence ``p`` and ``P(home) = Phi((E_avail - E_used - E_home) / sd_home) < p``.
-2. ``replan`` when the map changed since the plan was made; or the energy per metre measured
-   over the estimator's window departs from the plan model's prediction for the same motion
-   by more than ``DEPARTURE_Z`` predictive standard deviations of the online estimator
-   (``energy_per_m_sd_J``); or the rest of the tour, re-evaluated with the online model,
-   has a vertex where ``E_used + E(here -> v) + E_home(v) + R(v) > E_avail - replan_margin_J``.
-3. ``continue`` otherwise.
-
-``remaining_range_m = max(0, E_avail - E_used - R) / e``, with ``e`` the online energy per
-metre over the recent motion (the plan model's flat-ground figure before any motion).
-
-How it is solved: ``identify.online.OnlineEstimator`` updates the model's coefficients and
-covariance from every batch (recursive least squares with forgetting) and measures the energy
-used; the return home is the cheapest roadmap way home (``planning.reach.way_home``) driven
-from rest to rest and re-evaluated exactly (``planning.tour.drive``, the same evaluation as
-the tour's returns) with the online coefficients, and its variance is ``g' Cov g`` (online
-covariance) plus the estimator's spread of the energy per metre in quadrature; a replan is
-``planning.tour.plan_tour`` from a ``StartState`` with the online model and the updated world.
-
-Why the answer is safe: ``continue`` and ``replan`` are only said when the current position
-has a return home whose exact energy with the model the data supports, plus the reserve,
-fits what is left; a new tour is only returned by ``plan_tour``, which keeps the homing
-constraint at every vertex with that model. Replay is deterministic: the same events (sample
-batches, map updates, adopted plans) in the same order rebuild the same session
-(``state_dict`` / ``from_state``; replans are stored, not recomputed).
+The rule it applies is in ``planning.session``'s docstring; the pieces it joins are
+``intake`` (samples checked and taken in), ``decision`` (a pure function of the figures) and
+``events`` (the log a session is rebuilt from).
 """
 
 from __future__ import annotations
 
-import json
 import math
-from collections import deque
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 
 import numpy as np
-import pandas as pd
 import shapely
 from scipy.spatial import cKDTree
-from scipy.stats import norm
 from shapely.geometry import MultiPolygon, Polygon, shape
 
 from orange_plan.errors import InputError
-from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
-from orange_plan.identify.soc import SocCapacity
+from orange_plan.identify.online import WINDOW_PARTS
 from orange_plan.physics.pathcost import path_energy
-from orange_plan.physics.state import MotionState
-from orange_plan.planning.coverage import footprint
 from orange_plan.planning.paths import distinct_vertices
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import prepare_reach, reserve_J, way_home
-from orange_plan.telemetry.recording import recording_from_frame
-from orange_plan.telemetry.state import recording_state
-
-ACTIONS = ("continue", "replan", "return_home")
-DEPARTURE_Z = 3.0
-"""Predictive standard deviations of the energy per metre beyond which the measured rate is
-said to depart from the plan's model (three: a false alarm about once in 370 windows)."""
-CONTEXT_ROWS = 8
-"""Earlier samples prepended to a batch so speeds and yaw rates derived from positions
-(centred differences over ``SMOOTH_WINDOW_S``) are continuous across batches."""
-STATE_VERSION = 1
-"""Version of the ``state_dict`` layout."""
-
-
-@dataclass(frozen=True)
-class Decision:
-    """What the robot should do now, and the figures it rests on.
-
-    Attributes
-    ----------
-    action : "continue", "replan" or "return_home"
-    reason : one sentence a person can check against the figures
-    position_xy_m : last reported position [m]
-    energy_used_J : measured battery energy so far [J]
-    time_s : mission time of the last sample [s]
-    energy_to_home_J : energy of the return home from the position, online model [J]
-    reserve_J : reserve kept for that return (the scenario's rule) [J]
-    homing_margin_J : energy_available - energy_used - energy_to_home - reserve [J]
-    return_probability : probability that the energy left covers the return [-]
-    remaining_range_m : (energy left - reserve) / online energy per metre [m]
-    covered_m2 : area sensed so far (sensor footprint along the trail) [m^2]
-    energy_available_J : usable battery energy the decision counts on [J]: the scenario's,
-        or less when the telemetry's ``soc`` shows a smaller battery (``capacity_from_soc``)
-    """
-
-    action: str
-    reason: str
-    position_xy_m: tuple[float, float]
-    energy_used_J: float
-    time_s: float
-    energy_to_home_J: float
-    reserve_J: float
-    homing_margin_J: float
-    return_probability: float
-    remaining_range_m: float
-    covered_m2: float
-    energy_available_J: float = math.nan
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["position_xy_m"] = list(self.position_xy_m)
-        return d
-
-
-@dataclass
-class _Batch:
-    """One telemetry batch as the estimator's window keeps it."""
-
-    duration_s: float
-    distance_m: float
-    measured_J: float
-    state: MotionState
-    dt: np.ndarray
-    wind_dt_m: tuple[float, float]  # time integrals of the wind (the window's mean wind)
-    planned_J: float | None = None  # this motion's energy under the plan's model (lazily)
-
-
-@dataclass(frozen=True)
-class _Home:
-    """The return home from the current position."""
-
-    energy_J: float
-    reserve_J: float
-    sd_J: float
+from orange_plan.planning.session.decision import Decision, Home, HomingState, decide
+from orange_plan.planning.session.events import (
+    EventLog,
+    check_state,
+    plan_from_geojson,
+    replay_events,
+)
+from orange_plan.planning.session.intake import Intake, validated_batch
 
 
 class MissionSession:
@@ -167,7 +49,8 @@ class MissionSession:
     Attributes
     ----------
     plan : the current plan
-    ctx : the current context (its world gains the map updates)
+    ctx : the current context (its world gains the map updates; each update raises its
+        map's ``version``)
     """
 
     def __init__(self, ctx, plan: Plan | None = None, *, n_vertices: int = 3000, seed: int = 0,
@@ -182,32 +65,51 @@ class MissionSession:
         self.n_vertices, self.seed, self.replan_margin_J = n_vertices, int(seed), margin
         self.planner_kwargs = {"bitstar_legs": 0, **(planner_kwargs or {})}
         self.memory_s, self.window_s = float(memory_s), float(window_s)
-        self._estimator = OnlineEstimator(ctx.model, ctx.scenario.battery.usable_J,
-                                          memory_s=memory_s, window_s=window_s)
-        self._events: list[dict] = []
-        self._soc = SocCapacity()
-        self._history = pd.DataFrame()
-        self._window: deque[_Batch] = deque()
+        self._log = EventLog()
         self._batch_cache: dict = {}
+        self._planner = None
+        self._home_reach = None  # (map version, reach, k-d tree of its vertices)
+        self._intake = Intake(ctx.model, ctx.scenario.battery.usable_J, memory_s=memory_s,
+                              window_s=window_s)
         if plan is None:
             plan = self._plan(StartState())
         self._initial_plan = plan
-        self._energy_start_J = float(plan.energy_used_J[0])
-        self.trail_xy_m = np.asarray(plan.xy_m[:1], float).reshape(-1, 2)
-        self.covered = shapely.GeometryCollection()
-        self.time_s = float(plan.t_s[0])
-        self._t_last: float | None = None
+        self._intake.start_at(plan.xy_m[:1], float(plan.energy_used_J[0]), float(plan.t_s[0]))
         self._adopt(plan)
 
     # --- state ---------------------------------------------------------------------------
     @property
     def energy_used_J(self) -> float:
-        """Measured battery energy so far, sum of P dt [J] (plus the plan's start energy)."""
-        return self._energy_start_J + self._estimator.energy_used_J
+        """Measured battery energy so far, sum of P dt from the plan's start energy, never
+        below 0 (``intake.energy_used_after``) [J]."""
+        return self._intake.energy_used_J
 
     @property
     def position_xy_m(self) -> tuple[float, float]:
-        return (float(self.trail_xy_m[-1, 0]), float(self.trail_xy_m[-1, 1]))
+        return self._intake.position_xy_m
+
+    @property
+    def trail_xy_m(self) -> np.ndarray:
+        """Reported positions, the plan's start first (n, 2) [m]."""
+        return self._intake.trail_xy_m
+
+    @property
+    def covered(self):
+        """Area sensed so far (sensor footprint along the trail)."""
+        return self._intake.covered
+
+    @property
+    def time_s(self) -> float:
+        """Time of the last sample (the plan's start before any) [s]."""
+        return self._intake.time_s
+
+    @property
+    def _soc(self):
+        return self._intake.soc
+
+    @property
+    def _events(self) -> EventLog:
+        return self._log
 
     @property
     def energy_available_J(self) -> float:
@@ -215,7 +117,7 @@ class MissionSession:
         telemetry's state of charge shows (``capacity_from_soc``): an aged battery must not
         be spent as if it were new."""
         claimed = float(self.ctx.scenario.battery.usable_J)
-        shown = self._soc.usable_J()
+        shown = self._intake.soc.usable_J()
         return claimed if shown is None else min(claimed, shown)
 
     @property
@@ -224,10 +126,15 @@ class MissionSession:
         return float(self.ctx.scenario.battery.usable_J) - self.energy_available_J
 
     @property
+    def map_version(self) -> int:
+        """The current map's version (0: the scenario's map; +1 per update)."""
+        return self.ctx.world.map.version
+
+    @property
     def online_model(self):
         """The scenario model with the estimator's coefficients and covariance."""
         def build():
-            est = self._estimator
+            est = self._intake.estimator
             return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta_)),
                                              est.cov_)
         return self._per_batch("online_model", build)
@@ -237,17 +144,18 @@ class MissionSession:
         """The context's conditions with the wind measured over the window (the scenario's
         wind where the samples carry none)."""
         def build():
-            duration = sum(b.duration_s for b in self._window)
+            window = self._intake.window
+            duration = sum(b.duration_s for b in window)
             if duration <= 0:
                 return self.ctx.conditions
-            wx = sum(b.wind_dt_m[0] for b in self._window)
-            wy = sum(b.wind_dt_m[1] for b in self._window)
+            wx = sum(b.wind_dt_m[0] for b in window)
+            wy = sum(b.wind_dt_m[1] for b in window)
             return self.ctx.conditions.with_wind((wx / duration, wy / duration))
         return self._per_batch("conditions_now", build)
 
     def _estimate(self):
         """The online estimator's figures after the last batch."""
-        return self._per_batch("estimate", self._estimator.estimate)
+        return self._per_batch("estimate", self._intake.estimator.estimate)
 
     def _per_batch(self, name: str, build):
         """A figure that only changes when a batch arrives or the map changes, built once
@@ -266,11 +174,16 @@ class MissionSession:
         self.plan = plan
         self._plan_model = self.online_model
         self._plan_conditions = self.conditions_now
+        self._plan_map_version = self.map_version
         self._progress = 0
-        for b in self._window:
+        for b in self._intake.window:
             b.planned_J = None  # a new plan model: predict again
-        self._map_changed = False
-        self._home_reach = None
+
+    def adopt_stored_plan(self, geojson: dict) -> None:
+        """Fly a plan stored in the event log (a restored session's replan)."""
+        plan = plan_from_geojson(geojson)
+        self._log.plan(geojson)
+        self._adopt(plan)
 
     # --- telemetry -----------------------------------------------------------------------
     def feed(self, samples) -> Decision:
@@ -287,90 +200,16 @@ class MissionSession:
         ------
         InputError
             One line: a missing column, a non-numeric or non-finite value in a needed column,
-            time not increasing (within the batch or against the previous batch).
+            a negative time, time not increasing (within the batch or against the previous
+            batch), a position off the map (``world.positions.check_on_map``). A position on
+            the map but outside its free space is taken, and the decision flags it.
         """
-        frame = self._validated(samples)
-        self._ingest(frame)
-        self._events.append({"feed": frame})  # as JSON records only when state_dict asks
-        return self.decision()
-
-    def _validated(self, samples) -> pd.DataFrame:
-        if isinstance(samples, pd.DataFrame):
-            frame = samples.reset_index(drop=True).copy()
-        else:
-            try:
-                frame = pd.DataFrame(list(samples))
-            except (TypeError, ValueError) as exc:
-                raise InputError(f"samples must be a DataFrame or a list of dicts ({exc})") from None
-        if len(frame) == 0:
-            raise InputError("samples: the batch is empty")
-        power = ["power_W"] if "power_W" in frame else ["voltage_V", "current_A"]
-        needed = ["t_s", *power, "x_m", "y_m"]
-        missing = [c for c in needed if c not in frame]
-        if missing:
-            raise InputError(f"samples: missing column(s) {missing} (need t_s, power_W or "
-                             "voltage_V and current_A, x_m, y_m)")
-        for col in needed:
-            floats = frame[col].dtype == np.float64  # JSON numbers: no text to convert
-            values = (frame[col].to_numpy() if floats
-                      else pd.to_numeric(frame[col], errors="coerce").to_numpy(float))
-            bad = np.flatnonzero(~np.isfinite(values))
-            if bad.size:
-                raise InputError(f"samples: {col} is not a finite number at row {int(bad[0])} "
-                                 f"({frame[col].iloc[int(bad[0])]!r})")
-            if not floats:
-                frame[col] = values
-        t = frame["t_s"].to_numpy(float)
-        prev = np.r_[self._t_last if self._t_last is not None else -np.inf, t[:-1]]
-        back = np.flatnonzero(t <= prev)
-        if back.size:
-            i = int(back[0])
-            raise InputError(f"samples: t_s does not increase at row {i} ({t[i]:g} s after "
-                             f"{prev[i]:g} s)")
-        if "power_W" not in frame:
-            frame["power_W"] = frame["voltage_V"] * frame["current_A"]
-        return frame
-
-    def _ingest(self, frame: pd.DataFrame) -> None:
-        """Energy, estimator, trail and covered area from a validated batch."""
+        frame = validated_batch(samples, self.ctx.world, self._intake.t_last)
         self._new_batch()
-        history = pd.concat([self._history, frame], ignore_index=True)
-        t = frame["t_s"].to_numpy(float)
-        xy = frame[["x_m", "y_m"]].to_numpy(float)
-        dt = np.diff(np.r_[t[0] if self._t_last is None else self._t_last, t])
-        if len(history) >= 2:
-            context = history.tail(len(frame) + CONTEXT_ROWS)
-            rec = recording_from_frame(context, "samples")
-            state = recording_state(rec, self.ctx.world, conditions=self.ctx.conditions)
-            state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
-            state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
-            power = frame["power_W"].to_numpy(float)
-            used_before = self.energy_used_J
-            self._estimator.update(state, power, dt)
-            if "soc" in frame:
-                self._soc.add(used_before + np.cumsum(power * dt),
-                              pd.to_numeric(frame["soc"], errors="coerce").to_numpy(float))
-            speed = np.asarray(state.speed_mps, float) * np.ones(len(t))
-            self._remember(float(dt.sum()), float(np.sum(speed * dt)), float(power @ dt),
-                           state, dt)
-        self._history = history.tail(CONTEXT_ROWS).reset_index(drop=True)
-        r = self.ctx.scenario.mission.sensor_radius_m
-        seen = footprint(self.ctx.world, np.vstack([self.trail_xy_m[-1:], xy]), r)
-        self.covered = seen if self.covered.is_empty else self.covered.union(seen)
-        self.trail_xy_m = np.vstack([self.trail_xy_m, xy])
-        self.time_s = float(t[-1])
-        self._t_last = float(t[-1])
+        self._intake.take(frame, self.ctx)
         self._progress = self._tour_progress()
-
-    def _remember(self, duration_s, distance_m, measured_J, state, dt) -> None:
-        """Keep the last ``window_s`` of batches: what was measured and the motion, so any
-        model's prediction for the same motion can be made."""
-        wind = tuple(float(np.sum(np.asarray(w) * dt))
-                     for w in (state.wind_x_mps, state.wind_y_mps))
-        self._window.append(_Batch(duration_s, distance_m, measured_J, state, dt, wind))
-        span = sum(b.duration_s for b in self._window)
-        while len(self._window) > 1 and span - self._window[0].duration_s >= self.window_s:
-            span -= self._window.popleft().duration_s
+        self._log.feed(frame)
+        return self.decision()
 
     def _tour_progress(self) -> int:
         """Index of the tour segment the robot is on: the first one, from the last progress
@@ -385,70 +224,52 @@ class MissionSession:
 
     # --- decision ------------------------------------------------------------------------
     def decision(self) -> Decision:
-        """The decision now (module docstring: decision rule)."""
-        used = self.energy_used_J
-        avail = self.energy_available_J
-        home = self._return_home()
-        margin = avail - used - home.energy_J - home.reserve_J
-        prob = _probability(avail - used - home.energy_J, home.sd_J)
-        res_rule = self.ctx.scenario.mission.reserve
-        left = max(avail - used - home.reserve_J, 0.0)
-        per_m = self._energy_per_m_J()
-        figures = dict(
-            position_xy_m=self.position_xy_m, energy_used_J=used, time_s=self.time_s,
-            energy_to_home_J=home.energy_J, reserve_J=home.reserve_J, homing_margin_J=margin,
-            return_probability=prob, remaining_range_m=left / per_m if per_m > 0 else math.inf,
-            covered_m2=float(self.covered.area), energy_available_J=avail)
-        if not math.isfinite(home.energy_J):
-            return Decision("return_home", "no way home was found from the current position; "
-                            "head home by the last known way", **figures)
-        if margin < 0:
-            return Decision("return_home", f"the homing margin is {margin:,.0f} J: "
-                            f"{used:,.0f} J used + {home.energy_J:,.0f} J to home + "
-                            f"{home.reserve_J:,.0f} J reserve exceed {avail:,.0f} J available",
-                            **figures)
-        if res_rule.kind == "confidence" and prob < res_rule.value:
-            return Decision("return_home", f"the probability of getting home is {prob:.4f}, "
-                            f"below the reserve's confidence {res_rule.value:g}", **figures)
-        reason = self._replan_reason(used, avail)
-        if reason is not None:
-            return Decision("replan", reason, **figures)
-        return Decision("continue", f"home is {home.energy_J:,.0f} J away with "
-                        f"{margin:,.0f} J to spare after the {home.reserve_J:,.0f} J reserve, "
-                        "and the plan still fits the measured energy", **figures)
+        """The decision now (``planning.session``: decision rule; ``decision.decide``)."""
+        return decide(self.homing_state())
 
-    def _replan_reason(self, used: float, avail: float) -> str | None:
-        if self._map_changed:
-            return "the map changed since the plan was made"
-        departure = self._departure()
-        if departure is not None:
-            measured, predicted, sd = departure
-            if abs(measured - predicted) > DEPARTURE_Z * sd:
-                return (f"the measured energy per metre {measured:.2f} J/m departs from the "
-                        f"plan's {predicted:.2f} J/m by more than {DEPARTURE_Z:g} x "
-                        f"{sd:.2f} J/m (the online predictive spread)")
-        worst = self._remaining_tour_margin_J(used, avail)
-        if worst < self.replan_margin_J:
-            return (f"the rest of the tour, re-evaluated with the online model, leaves a "
-                    f"homing margin of {worst:,.0f} J < {self.replan_margin_J:,.0f} J")
-        return None
+    def homing_state(self) -> HomingState:
+        """The figures the decision weighs, from the telemetry, the return home and the
+        plan's checks."""
+        used, avail = self.energy_used_J, self.energy_available_J
+        where = self._position_where()
+        free = where == "free"
+        return HomingState(
+            position_xy_m=self.position_xy_m, time_s=self.time_s, energy_used_J=used,
+            energy_available_J=avail, covered_m2=float(self.covered.area),
+            position_where=where, reserve=self.ctx.scenario.mission.reserve,
+            home=self._return_home() if free else None,
+            energy_per_m_J=self._energy_per_m_J(),
+            map_changed=self.map_version != self._plan_map_version,
+            departure=self._departure() if free else None,
+            tour_margin_J=self._remaining_tour_margin_J(used, avail) if free else math.nan,
+            replan_margin_J=self.replan_margin_J)
+
+    def _position_where(self) -> str:
+        """"free" where the map allows the robot to be (``World.is_free``), else
+        "off_map" past the boundary or "in_obstacle"."""
+        world, (x, y) = self.ctx.world, self.position_xy_m
+        if bool(world.is_free(x, y)):
+            return "free"
+        return "in_obstacle" if world.map.boundary.intersects(shapely.Point(x, y)) \
+            else "off_map"
 
     def _departure(self):
         """(measured, plan-model predicted, predictive sd) energy per metre over the window
         [J/m], or None while the window is too short to have a spread."""
-        if len(self._window) < 2 * WINDOW_PARTS:
+        window = self._intake.window
+        if len(window) < 2 * WINDOW_PARTS:
             return None
-        dist = sum(b.distance_m for b in self._window)
+        dist = sum(b.distance_m for b in window)
         if dist <= 0:
             return None
-        measured = sum(b.measured_J for b in self._window) / dist
+        measured = sum(b.measured_J for b in window) / dist
         # the plan's prediction: its model under its conditions (its wind), on the motion driven
         wx, wy = self._plan_conditions.wind_xy_mps
-        for b in self._window:  # each batch once per plan (a window holds up to ~150)
+        for b in window:  # each batch once per plan (a window holds up to ~150)
             if b.planned_J is None:
                 b.planned_J = float(np.sum(np.asarray(self._plan_model.power_W(
                     b.state.with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b.dt))
-        predicted = sum(b.planned_J for b in self._window) / dist
+        predicted = sum(b.planned_J for b in window) / dist
         sd = self._estimate().energy_per_m_sd_J
         if not (math.isfinite(sd) and sd > 0):
             return None
@@ -465,39 +286,30 @@ class MissionSession:
         return simplified_range(self.ctx.scenario, self.online_model,
                                 self.ctx.world.default_crr).energy_per_m_J
 
-    def _return_home(self) -> _Home:
-        """Best roadmap return from the position, driven from rest to rest and evaluated with
-        the online model (energy and gradient from one drive, as the tour's returns)."""
+    def _return_home(self) -> Home:
+        """Best roadmap return from the position (free: ``homing_state`` asks only then),
+        driven from rest to rest and evaluated with the online model (energy and gradient
+        from one drive, as the tour's returns)."""
         from orange_plan.planning.tour import drive
 
         reach, tree = self._reach()
         model = self.online_model
         exact = replace(reach.exact, model=model, world=self.ctx.world,
                         conditions=self.conditions_now)
-        for xy in self._free_positions():
-            back = way_home(replace(reach, exact=exact), xy, tree)
-            if back is None:
-                continue
-            if len(back) < 2:  # at home
-                return _Home(0.0, float(reserve_J(self.ctx.scenario.mission.reserve,
-                                                  self.energy_available_J, 0.0)), 0.0)
-            driven = drive(exact, back, exact.speed_mps)
-            energy = float(driven.energy_J[-1])
-            var = float(model.energy_variance_J2(driven.gradient[-1]))
-            spread = self._relative_spread() * energy
-            sd = math.sqrt(max(var, 0.0) + spread**2)
-            res = float(reserve_J(self.ctx.scenario.mission.reserve, self.energy_available_J,
-                                  sd**2))
-            return _Home(energy, res, sd)
-        return _Home(math.inf, 0.0, 0.0)
-
-    def _free_positions(self):
-        """The position, or (GPS noise beside an obstacle) the latest free trail point."""
-        world = self.ctx.world
-        recent = self.trail_xy_m[::-1][:200]
-        free = world.is_free(recent[:, 0], recent[:, 1])
-        for i in np.flatnonzero(free)[:3]:
-            yield tuple(float(v) for v in recent[i])
+        back = way_home(replace(reach, exact=exact), self.position_xy_m, tree)
+        if back is None:
+            return Home(math.inf, 0.0, 0.0)
+        if len(back) < 2:  # at home
+            return Home(0.0, float(reserve_J(self.ctx.scenario.mission.reserve,
+                                             self.energy_available_J, 0.0)), 0.0)
+        driven = drive(exact, back, exact.speed_mps)
+        energy = float(driven.energy_J[-1])
+        var = float(model.energy_variance_J2(driven.gradient[-1]))
+        spread = self._relative_spread() * energy
+        sd = math.sqrt(max(var, 0.0) + spread**2)
+        res = float(reserve_J(self.ctx.scenario.mission.reserve, self.energy_available_J,
+                              sd**2))
+        return Home(energy, res, sd)
 
     def _relative_spread(self) -> float:
         """The online estimator's predictive sd of the energy per metre over its value
@@ -509,11 +321,11 @@ class MissionSession:
     def _reach(self):
         """Roadmap and to-home field of the current world, and a k-d tree of its vertices
         (built once per map version)."""
-        if self._home_reach is None:
+        if self._home_reach is None or self._home_reach[0] != self.map_version:
             reach = prepare_reach(self.ctx, None, 0.0, n_vertices=self.n_vertices,
                                   seed=self.seed, with_gradient=False)
-            self._home_reach = (reach, cKDTree(reach.roadmap.xy_m))
-        return self._home_reach
+            self._home_reach = (self.map_version, reach, cKDTree(reach.roadmap.xy_m))
+        return self._home_reach[1:]
 
     def _remaining_tour_margin_J(self, used: float, avail: float) -> float:
         """Smallest homing margin over the rest of the tour with the online model [J].
@@ -552,23 +364,24 @@ class MissionSession:
         ------
         InputError
             When no tour fits (e.g. the robot should go home: the battery left cannot visit
-            anything new and come back).
+            anything new and come back), or the position is not in the map's free space.
         """
         # a battery smaller than the scenario's is planned as that much energy already spent
         start = StartState(self.position_xy_m, self.energy_used_J + self.capacity_shortfall_J,
                            self.time_s, None if self.covered.is_empty else self.covered)
         plan = self._plan(start)
-        self._events.append({"plan": plan.to_geojson()})
+        self._log.plan(plan.to_geojson())
         self._adopt(plan)
         return plan
 
     def _plan(self, start: StartState) -> Plan:
         """A tour with the online model and the current world. The first plan builds the
         roadmap and candidate legs; later replans reuse them (``tour.TourPlanner``: a warm
-        replan only adds the robot's position to the roadmap), unless the map changed."""
+        replan only adds the robot's position to the roadmap), unless the map's version
+        changed."""
         from orange_plan.planning.tour import TourPlanner
 
-        if getattr(self, "_planner", None) is None:
+        if self._planner is None:
             self._planner = TourPlanner(self.ctx, n_vertices=self.n_vertices, seed=self.seed,
                                         **self.planner_kwargs)
         return self._planner.plan(start, model=self.online_model, world=self.ctx.world,
@@ -601,15 +414,11 @@ class MissionSession:
                                      f"({xy[0]:g}, {xy[1]:g}) m; refused")
         m = self.ctx.world.map
         new_map = replace(m, obstacles=(*m.obstacles, *new_obstacles),
-                          no_go=(*m.no_go, *new_no_go))
+                          no_go=(*m.no_go, *new_no_go), version=m.version + 1)
         self.ctx = replace(self.ctx, world=replace(self.ctx.world, map=new_map))
         self._new_batch()
-        self._events.append({"map": {"obstacles": [shapely.geometry.mapping(p)
-                                                   for p in new_obstacles],
-                                     "no_go": [shapely.geometry.mapping(p) for p in new_no_go]}})
-        self._map_changed = True
-        self._home_reach = None
-        self.covered = self.covered.intersection(new_map.free_space)
+        self._log.map_update(new_obstacles, new_no_go)
+        self._intake.covered = self._intake.covered.intersection(new_map.free_space)
         if replan:
             self.replan()
         return self.decision()
@@ -622,15 +431,11 @@ class MissionSession:
         sample batch, map update and adopted plan. Replans are stored, not recomputed, so a
         restored session is the same whatever planner time limits did.
         """
-        return json.loads(json.dumps({
-            "version": STATE_VERSION, "scenario": self.ctx.scenario.name,
+        return self._log.state({
+            "scenario": self.ctx.scenario.name,
             "n_vertices": self.n_vertices, "seed": self.seed,
             "replan_margin_J": self.replan_margin_J, "planner_kwargs": self.planner_kwargs,
-            "memory_s": self.memory_s, "window_s": self.window_s,
-            "plan": self._initial_plan.to_geojson(),
-            "events": [{"feed": _records(e["feed"])} if "feed" in e else e
-                       for e in self._events],
-        }, default=_json_default))
+            "memory_s": self.memory_s, "window_s": self.window_s}, self._initial_plan)
 
     @classmethod
     def from_state(cls, ctx, state: dict) -> MissionSession:
@@ -641,60 +446,16 @@ class MissionSession:
         InputError
             A state of another version or scenario, or a malformed event.
         """
-        if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
-            raise InputError(f"session state must be a dict of version {STATE_VERSION}")
-        if state.get("scenario") != ctx.scenario.name:
-            raise InputError(f"session state is for scenario {state.get('scenario')!r}, "
-                             f"not {ctx.scenario.name!r}")
+        check_state(state, ctx.scenario.name)
         session = cls(ctx, plan_from_geojson(state["plan"]), n_vertices=state["n_vertices"],
                       seed=state["seed"], replan_margin_J=state["replan_margin_J"],
                       planner_kwargs=state["planner_kwargs"], memory_s=state["memory_s"],
                       window_s=state["window_s"])
-        for event in state["events"]:
-            if "feed" in event:
-                session.feed(pd.DataFrame(event["feed"]))
-            elif "map" in event:
-                session.update_map(event["map"]["obstacles"], event["map"]["no_go"],
-                                   replan=False)
-            elif "plan" in event:
-                plan = plan_from_geojson(event["plan"])
-                session._events.append({"plan": event["plan"]})
-                session._adopt(plan)
-            else:
-                raise InputError(f"session state: unknown event {sorted(event)}")
+        replay_events(session, state["events"])
         return session
 
 
 # --- helpers ------------------------------------------------------------------------------
-
-
-def plan_from_geojson(data: dict) -> Plan:
-    """A Plan from its SPEC §4 GeoJSON (``Plan.to_geojson``).
-
-    Raises
-    ------
-    InputError
-        No tour feature, or per-vertex arrays of the wrong length.
-    """
-    features = data.get("features", []) if isinstance(data, dict) else []
-    tour = next((f for f in features if f.get("properties", {}).get("kind") == "tour"), None)
-    if tour is None:
-        raise InputError("plan: no feature with kind = 'tour'")
-    props = tour["properties"]
-    xy = np.asarray(tour["geometry"]["coordinates"], float).reshape(-1, 2)
-    arrays = {}
-    for key in ("t_s", "speed_mps", "energy_used_J", "energy_to_home_J", "reserve_J",
-                "margin_J"):
-        values = np.asarray(props.get(key, np.zeros(len(xy))), float)
-        if values.shape != (len(xy),):
-            raise InputError(f"plan: tour {key} has {values.size} values for {len(xy)} vertices")
-        arrays[key] = values
-    waypoints = [f["geometry"]["coordinates"] for f in features
-                 if f.get("properties", {}).get("kind") == "waypoint"]
-    covered = next((shape(f["geometry"]) for f in features
-                    if f.get("properties", {}).get("kind") == "covered"), None)
-    return Plan(xy, waypoints_xy_m=np.asarray(waypoints, float).reshape(-1, 2), covered=covered,
-                summary=dict(data.get("summary", {})), **arrays)
 
 
 def _polygon(value, what: str):
@@ -722,23 +483,3 @@ def _distance_to_segments(p, a, b) -> np.ndarray:
     length2 = np.einsum("ij,ij->i", ab, ab)
     t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.where(length2 > 0, length2, 1.0), 0, 1)
     return np.hypot(*(p - (a + t[:, None] * ab)).T)
-
-
-def _probability(slack_J: float, sd_J: float) -> float:
-    if sd_J > 0:
-        return float(norm.cdf(slack_J / sd_J))
-    return 1.0 if slack_J >= 0 else 0.0
-
-
-def _records(frame: pd.DataFrame) -> dict:
-    """A batch as JSON-ready columns (NaN as None)."""
-    return {c: [None if isinstance(v, float) and not math.isfinite(v) else v
-                for v in frame[c].tolist()] for c in frame.columns}
-
-
-def _json_default(obj):
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
