@@ -8,8 +8,8 @@ the trail and the area sensed, and the estimator's window of recent batches.
 
 Energy used is ``sum P dt`` with regeneration: a negative power sample (a robot braking or
 going downhill) gives energy back, but a battery cannot hold more than when full, so the
-cumulative energy used never goes below 0 (``energy_used_after``), and the spare energy a
-decision counts on never exceeds the battery's.
+cumulative energy used never goes below 0 (``physics.battery.energy_used_after``), and the
+spare energy a decision counts on never exceeds the battery's.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import shapely
 from orange_plan.errors import InputError
 from orange_plan.identify.online import OnlineEstimator
 from orange_plan.identify.soc import SocCapacity
+from orange_plan.physics.battery import energy_used_after
 from orange_plan.physics.state import MotionState
 from orange_plan.planning.coverage import footprint
 from orange_plan.telemetry.recording import recording_from_frame
@@ -106,23 +107,6 @@ def _check_time(t: np.ndarray, t_last: float | None) -> None:
         i = int(back[0])
         raise InputError(f"samples: t_s does not increase at row {i} ({t[i]:g} s after "
                          f"{prev[i]:g} s)")
-
-
-def energy_used_after(start_J: float, power_W, dt_s) -> np.ndarray:
-    """Battery energy used after each sample [J]: ``start + cumsum(P dt)``, held at 0 from
-    below (a full battery takes no more regeneration).
-
-    This is the running clamp ``E_k = max(0, E_{k-1} + P_k dt_k)``, in closed form:
-    ``S_k - min(0, min_{j<=k} S_j)`` with ``S`` the unclamped sum.
-
-    Parameters
-    ----------
-    start_J : energy used before the first sample [J] (>= 0)
-    power_W : battery power per sample [W] (negative: regeneration)
-    dt_s : time each sample's power lasts [s]
-    """
-    total = float(start_J) + np.cumsum(np.asarray(power_W, float) * np.asarray(dt_s, float))
-    return total - np.minimum(0.0, np.minimum.accumulate(total))
 
 
 @dataclass
