@@ -83,6 +83,24 @@ def test_position_outside_free_space_is_flagged_then_clears(mission, xy, action)
     assert math.isfinite(back.energy_to_home_J)
 
 
+@pytest.mark.parametrize("xy", [IN_OBSTACLE[0], (-9.0, -9.0), (17.0, 15.0)])
+def test_a_position_glitch_counts_its_energy_but_teaches_nothing(mission, xy):
+    """The glitch's jump must not stretch the distance the energy per metre (and so the
+    remaining range) is taken over, mark area as sensed, or move the tour progress on."""
+    ctx, plan = mission
+    plain = MissionSession(ctx, plan, **KW)
+    plain.feed(batch(0.0, HOME))
+    reference = plain.feed(batch(20.0, (1.2, 1.0)))
+    session = MissionSession(ctx, plan, **KW)
+    first = session.feed(batch(0.0, HOME))
+    glitch = session.feed(batch(10.0, xy))
+    assert glitch.covered_m2 == first.covered_m2 and session._progress == 0
+    assert glitch.energy_used_J == pytest.approx(first.energy_used_J + 9.0 * 10)
+    after = session.feed(batch(20.0, (1.2, 1.0)))
+    assert after.energy_used_J == pytest.approx(reference.energy_used_J)
+    assert after.remaining_range_m < 1.5 * reference.remaining_range_m
+
+
 @pytest.mark.timeout(300)
 @settings(max_examples=40, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

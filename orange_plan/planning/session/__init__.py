@@ -16,9 +16,9 @@ and, on a replan, a new tour from the current position, energy, time and area al
 sensed, made with the model the telemetry has taught (a head wind or a heavier load
 shrinks it, a lighter one may extend it), in the world with every map update.
 
-Decision rule (``MissionSession.decision``, the pure ``decision.decide``), in this order, with ``E_avail`` the usable
-battery energy (the scenario's, or less when the telemetry's state of charge shows a smaller
-battery: ``identify.soc``), ``E_used`` the measured battery energy so far (sum of ``P dt``;
+Decision rule (``MissionSession.decision``, the pure ``decision.decide``), in this order,
+with ``E_avail`` the usable battery energy (the scenario's, or less when the telemetry's
+state of charge shows a smaller battery: ``identify.soc``), ``E_used`` the measured battery energy so far (sum of ``P dt``;
 a negative power is regeneration, refilling the battery at most to full: ``E_used >= 0``),
 ``E_home`` the energy of the best roadmap return from the current position evaluated with
 the online model, ``R`` the scenario's reserve for that return and ``sd_home`` its predictive
@@ -26,9 +26,10 @@ standard deviation:
 
 0. ``position_in_obstacle`` or ``off_map_position`` (flags) when the reported position is
    not in the map's free space (``World.is_free``, with the robot's size): the robot is not
-   where the map says it can be, so no energy figure that depends on the position is given.
-   A position far off the map (``world.positions.check_on_map``, the rule predict and
-   calibrate apply to recordings) is refused with the batch (InputError).
+   where the map says it can be, so no energy figure that depends on the position is given
+   (and the batch's motion teaches the estimator nothing: ``intake.Intake.take``).
+   A position far off the map (``world.positions.check_on_map``, the rule predict,
+   calibrate and diagnose apply to recordings) is refused with the batch (InputError).
 1. ``return_home`` when ``margin = E_avail - E_used - E_home - R < 0``, or the reserve is a
    confidence ``p`` and ``P(home) = Phi((E_avail - E_used - E_home) / sd_home) < p``.
 2. ``replan`` when the map changed since the plan was made; or the energy per metre measured

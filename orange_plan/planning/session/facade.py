@@ -206,8 +206,8 @@ class MissionSession:
         """
         frame = validated_batch(samples, self.ctx.world, self._intake.t_last)
         self._new_batch()
-        self._intake.take(frame, self.ctx)
-        self._progress = self._tour_progress()
+        if self._intake.take(frame, self.ctx):  # a glitch must not move the progress on
+            self._progress = self._tour_progress()
         self._log.feed(frame)
         return self.decision()
 

@@ -4,7 +4,10 @@
 column, a value that is not a finite number, time negative or not increasing, a position
 off the map (``world.positions.check_on_map``, the rule predict and calibrate apply).
 ``Intake`` keeps what the samples taught: the battery energy used, the online estimator,
-the trail and the area sensed, and the estimator's window of recent batches.
+the trail and the area sensed, and the estimator's window of recent batches. A batch with a
+position outside the map's free space counts its energy and time but teaches nothing
+(``Intake.take``): a localisation glitch must not stretch the distance the energy per metre
+and the remaining range are taken over, nor mark area as sensed.
 
 Energy used is ``sum P dt`` with regeneration: a negative power sample (a robot braking or
 going downhill) gives energy back, but a battery cannot hold more than when full, so the
@@ -137,6 +140,7 @@ class Intake:
     soc : the battery capacity the state of charge shows
     window : the last ``window_s`` of batches
     trail_xy_m : reported positions, the plan's start first (n, 2) [m]
+    last_free_xy_m : the last of them in the map's free space [m]
     covered : area sensed so far
     time_s : time of the last sample (the plan's start before any) [s]
     t_last : time of the last sample, None before the first [s]
@@ -157,6 +161,7 @@ class Intake:
         """Where the plan starts, before any sample: position [m], energy already used [J]
         (held at 0 from below), time [s]."""
         self.trail_xy_m = np.asarray(xy_m, float).reshape(-1, 2)
+        self.last_free_xy_m = self.trail_xy_m[-1]
         self.energy_used_J = max(float(energy_used_J), 0.0)
         self.time_s = float(time_s)
 
@@ -164,34 +169,60 @@ class Intake:
     def position_xy_m(self) -> tuple[float, float]:
         return (float(self.trail_xy_m[-1, 0]), float(self.trail_xy_m[-1, 1]))
 
-    def take(self, frame: pd.DataFrame, ctx) -> None:
-        """Energy, estimator, trail and covered area from a validated batch."""
-        history = pd.concat([self.history, frame], ignore_index=True)
+    def take(self, frame: pd.DataFrame, ctx) -> bool:
+        """Energy, time and trail from a validated batch; the estimator, its window and the
+        sensed area too when every position is where the map allows the robot to be.
+
+        Returns
+        -------
+        bool
+            True when every position is in the map's free space (``World.is_free``). A batch
+            with one that is not still counts its energy and time (the battery drained all
+            the same), but its motion is not the robot's as far as the map can tell: it
+            teaches the estimator nothing, stays out of the window and of the context later
+            batches' speeds are derived from, and senses no area.
+        """
         t = frame["t_s"].to_numpy(float)
         xy = frame[["x_m", "y_m"]].to_numpy(float)
         dt = np.diff(np.r_[t[0] if self.t_last is None else self.t_last, t])
-        if len(history) >= 2:
-            context = history.tail(len(frame) + CONTEXT_ROWS)
-            rec = recording_from_frame(context, "samples")
-            state = recording_state(rec, ctx.world, conditions=ctx.conditions)
-            state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
-            state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
-            power = frame["power_W"].to_numpy(float)
-            used = energy_used_after(self.energy_used_J, power, dt)
-            self.estimator.update(state, power, dt)
-            if "soc" in frame:
-                self.soc.add(used, pd.to_numeric(frame["soc"], errors="coerce").to_numpy(float))
-            self.energy_used_J = float(used[-1])
-            speed = np.asarray(state.speed_mps, float) * np.ones(len(t))
-            self._remember(float(dt.sum()), float(np.sum(speed * dt)), float(power @ dt),
-                           state, dt)
-        self.history = history.tail(CONTEXT_ROWS).reset_index(drop=True)
-        r = ctx.scenario.mission.sensor_radius_m
-        seen = footprint(ctx.world, np.vstack([self.trail_xy_m[-1:], xy]), r)
-        self.covered = seen if self.covered.is_empty else self.covered.union(seen)
+        power = frame["power_W"].to_numpy(float)
+        used = energy_used_after(self.energy_used_J, power, dt)
+        if "soc" in frame:
+            self.soc.add(used, pd.to_numeric(frame["soc"], errors="coerce").to_numpy(float))
+        self.energy_used_J = float(used[-1])
+        trusted = bool(np.all(ctx.world.is_free(xy[:, 0], xy[:, 1])))
+        if trusted:
+            self._learn(frame, ctx, dt)
+            self._sense(xy, ctx)
         self.trail_xy_m = np.vstack([self.trail_xy_m, xy])
         self.time_s = float(t[-1])
         self.t_last = float(t[-1])
+        return trusted
+
+    def _learn(self, frame: pd.DataFrame, ctx, dt: np.ndarray) -> None:
+        """The estimator and its window from a batch, its speeds and yaw rates derived with
+        the last ``CONTEXT_ROWS`` samples before it."""
+        history = pd.concat([self.history, frame], ignore_index=True)
+        self.history = history.tail(CONTEXT_ROWS).reset_index(drop=True)
+        if len(history) < 2:
+            return
+        t = frame["t_s"].to_numpy(float)
+        context = history.tail(len(frame) + CONTEXT_ROWS)
+        rec = recording_from_frame(context, "samples")
+        state = recording_state(rec, ctx.world, conditions=ctx.conditions)
+        state = state.take(slice(len(rec.frame) - len(frame), None), len(rec.frame))
+        state = state.with_(elapsed_s=t - float(history["t_s"].iloc[0]))
+        power = frame["power_W"].to_numpy(float)
+        self.estimator.update(state, power, dt)
+        speed = np.asarray(state.speed_mps, float) * np.ones(len(t))
+        self._remember(float(dt.sum()), float(np.sum(speed * dt)), float(power @ dt), state, dt)
+
+    def _sense(self, xy: np.ndarray, ctx) -> None:
+        """The sensor footprint along the batch, from the last position the map allowed."""
+        r = ctx.scenario.mission.sensor_radius_m
+        seen = footprint(ctx.world, np.vstack([self.last_free_xy_m, xy]), r)
+        self.covered = seen if self.covered.is_empty else self.covered.union(seen)
+        self.last_free_xy_m = xy[-1]
 
     def _remember(self, duration_s, distance_m, measured_J, state, dt) -> None:
         """Keep the last ``window_s`` of batches: what was measured and the motion, so any
