@@ -115,6 +115,26 @@ def test_remaining_range_is_never_negative(power, speed, energy, memory):
         assert math.isfinite(e.energy_used_J)
 
 
+@settings(max_examples=60, deadline=None)
+@given(power=st.lists(st.floats(-2000, 200), min_size=1, max_size=30),
+       dt=st.floats(0.01, 10.0), energy=st.floats(1.0, 1e5))
+def test_regeneration_refills_the_battery_at_most_to_full(power, dt, energy):
+    """Energy used is sum P dt held at 0 from below, sample by sample (a full battery takes
+    no more), so the energy left never exceeds the battery's."""
+    est = OnlineEstimator(SIMPLE, energy, window_s=5.0)
+    n = len(power)
+    state = MotionState(speed_mps=np.full(n, 0.5), crr=np.full(n, 0.05))
+    used = 0.0
+    for k in range(0, n, 3):
+        e = est.update(state.with_(speed_mps=state.speed_mps[k:k + 3], crr=state.crr[k:k + 3]),
+                       power[k:k + 3], dt)
+        for p in power[k:k + 3]:
+            used = max(0.0, used + p * dt)
+        assert e.energy_used_J >= 0.0
+        assert e.energy_used_J == pytest.approx(used, rel=1e-9, abs=1e-6)
+        assert e.energy_remaining_J <= energy
+
+
 @pytest.mark.parametrize("name", ["rusti_v1_box"])
 def test_bench_run_on_a_repo_scenario(name):
     from pathlib import Path

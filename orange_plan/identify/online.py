@@ -46,6 +46,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from orange_plan.errors import InputError
+from orange_plan.physics.battery import energy_used_after
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
 
@@ -140,7 +141,7 @@ class OnlineEstimator:
         correction_J = float(np.sum((pred - jac @ self.theta_) * dt))
         self._learn(jac, y, pred, float(dt.sum()))
         self.t_s += float(dt.sum())
-        self.energy_used_J += float(np.sum(y * dt))
+        self.energy_used_J = float(energy_used_after(self.energy_used_J, y, dt)[-1])
         self.distance_m += float(np.sum(speed * dt))
         # energy = G.theta + C: C is what G.theta misses where power is not linear-homogeneous
         # in theta (regen is bilinear: H.theta counts the recovered power twice)

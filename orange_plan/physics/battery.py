@@ -1,9 +1,12 @@
-"""Battery capacity decay (the paper's Eq. 3) and the four loss groups eta_1..eta_4."""
+"""Battery capacity decay (the paper's Eq. 3), the four loss groups eta_1..eta_4, and the
+energy used from measured power."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 from orange_plan.errors import InputError
 
@@ -95,3 +98,22 @@ class Battery:
     def usable_J(self) -> float:
         """Usable energy ``E_avail = E (1 - eta_1)`` [J] (SPEC §7)."""
         return self.capacity_J * (1.0 - self.storage_loss)
+
+
+def energy_used_after(start_J: float, power_W, dt_s) -> np.ndarray:
+    """Battery energy used after each sample [J]: ``start + cumsum(P dt)``, held at 0 from
+    below. A negative power (regeneration: braking, going downhill) gives energy back, but a
+    full battery takes no more: the energy used never goes below 0, and the energy left
+    never exceeds the battery's.
+
+    This is the running clamp ``E_k = max(0, E_{k-1} + P_k dt_k)``, in closed form:
+    ``S_k - min(0, min_{j<=k} S_j)`` with ``S`` the unclamped sum.
+
+    Parameters
+    ----------
+    start_J : energy used before the first sample [J] (>= 0)
+    power_W : battery power per sample [W] (negative: regeneration)
+    dt_s : time each sample's power lasts [s]
+    """
+    total = float(start_J) + np.cumsum(np.asarray(power_W, float) * np.asarray(dt_s, float))
+    return total - np.minimum(0.0, np.minimum.accumulate(total))

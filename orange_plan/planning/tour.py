@@ -358,7 +358,7 @@ class TourPlanner:
     model, and only the search and the exact check run again. The exact check is the same as
     a cold plan's, with the current model, so a warm plan is as safe; the reuse only costs
     optimality where the model's change would have moved the roadmap's paths. A changed world
-    (map update) needs a new planner.
+    (a map update: another map ``version``) is planned cold.
 
     Parameters
     ----------
@@ -377,14 +377,15 @@ class TourPlanner:
     def plan(self, start: StartState | None = None, model=None, world=None, conditions=None,
              progress=None) -> Plan:
         """A tour from ``start`` with ``model``, ``world`` and ``conditions`` (default: the
-        context's). A world with another map (obstacles, no-go zones) than the setup's is
-        planned cold."""
+        context's). A world with another map version (obstacles, no-go zones added) than the
+        setup's is planned cold."""
         t0 = _time.perf_counter()
         start = start or StartState()
         ctx = replace(self.ctx, model=model or self.ctx.model, world=world or self.ctx.world,
                       conditions=conditions or self.ctx.conditions)
         step = progress or (lambda text: None)
-        if self.setup is not None and ctx.world.map is not self.setup.reach.exact.world.map:
+        if (self.setup is not None
+                and ctx.world.map.version != self.setup.reach.exact.world.map.version):
             self.ctx, self.setup = ctx, None
         if self.setup is None:
             self.setup = tour_setup(ctx, start, self.n_vertices, self.seed,

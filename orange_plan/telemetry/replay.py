@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orange_plan.errors import InputError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
 from orange_plan.telemetry.recording import Recording, cumulative_J, integrate_J
 from orange_plan.telemetry.state import recording_state
+from orange_plan.world.positions import check_on_map
 
 
 @dataclass(frozen=True)
@@ -134,36 +134,19 @@ def replay(recording: Recording, model: EnergyModel, world=None,
                   error_pct, rmse, recording.duration_s, predicted.sd_J)
 
 
-OFF_MAP_TOLERANCE = 0.1
-"""Positions may stray outside the map's boundary box by this fraction of its larger side
-(at least ``OFF_MAP_MIN_M``): GNSS noise, a robot parked at the edge."""
-OFF_MAP_MIN_M = 10.0
-
-
 def check_positions_on_map(recording: Recording, world) -> None:
-    """Refuse a recording whose positions lie far outside the map (another frame or origin).
+    """Refuse a recording whose positions lie far outside the map (another frame or origin):
+    ``world.positions.check_on_map``, the rule every entry point applies.
 
     Raises
     ------
     InputError
-        Naming how many positions lie beyond the map's boundary box (with its tolerance),
-        the first such row and how far it is.
+        Naming how many positions lie off the map, the first such sample and how far off.
     """
     frame = recording.frame
-    if "x_m" not in frame or "y_m" not in frame:
-        return
-    x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
-    x0, y0, x1, y1 = world.map.boundary.bounds
-    tol = max(OFF_MAP_MIN_M, OFF_MAP_TOLERANCE * max(x1 - x0, y1 - y0))
-    off = np.maximum.reduce([x0 - x, x - x1, y0 - y, y - y1, np.zeros_like(x)])
-    far = off > tol
-    if far.any():
-        i = int(np.flatnonzero(far)[0])
-        raise InputError(
-            f"{recording.source}: {int(far.sum())} of {len(x)} positions lie more than "
-            f"{tol:g} m outside the map's boundary box (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} m), "
-            f"the first at sample {i}: ({x[i]:g}, {y[i]:g}) m, up to {off.max():.3g} m off; is "
-            "the recording in the map's frame (x east, y north, metres from its origin)?")
+    if "x_m" in frame and "y_m" in frame:
+        check_on_map(world, frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float),
+                     recording.source)
 
 
 def replay_context(recording: Recording, ctx) -> Replay:

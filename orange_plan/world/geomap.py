@@ -73,6 +73,8 @@ class Map:
     elevation : raster, or None for flat ground at z = 0
     path : the file it came from
     origin : the WGS84 point at x = y = 0, or None (exports/imports in lat/lon are refused)
+    version : 0 as loaded, one more after each update (a mission's new obstacles): what was
+        computed for one version (a roadmap, a plan) is known stale by comparing versions
     """
 
     boundary: Polygon
@@ -84,6 +86,7 @@ class Map:
     elevation: ElevationRaster | None
     path: Path
     origin: Origin | None = None
+    version: int = 0
 
     @property
     def keep_out(self):

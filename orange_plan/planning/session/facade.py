@@ -1,0 +1,490 @@
+"""``MissionSession``: the mission in progress, joining the intake of telemetry, the return
+home, the plan's checks, the homing decision, replans, map updates and the event log.
+
+The rule it applies is in ``planning.session``'s docstring; the pieces it joins are
+``intake`` (samples checked and taken in), ``decision`` (a pure function of the figures) and
+``events`` (the log a session is rebuilt from).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+from shapely.geometry import MultiPolygon, Polygon, shape
+
+from orange_plan.errors import InputError
+from orange_plan.identify.online import WINDOW_PARTS
+from orange_plan.physics.pathcost import path_energy
+from orange_plan.planning.paths import distinct_vertices
+from orange_plan.planning.plan import Plan, StartState
+from orange_plan.planning.reach import prepare_reach, way_home
+from orange_plan.planning.reserve import reserve_from
+from orange_plan.planning.session.decision import Decision, Home, HomingState, decide
+from orange_plan.planning.session.events import (
+    EventLog,
+    check_state,
+    plan_from_geojson,
+    replay_events,
+)
+from orange_plan.planning.session.intake import Intake, validated_batch
+
+
+class MissionSession:
+    """A mission in progress: plan, telemetry, online model, decisions and replans.
+
+    Parameters
+    ----------
+    ctx : Context (scenario, world, model) the mission was planned in
+    plan : the plan being flown; None: plan the first tour from home here
+    n_vertices, seed : roadmap size and seed of replans and of the return-home roadmap
+    replan_margin_J : homing margin [J] the rest of the tour must keep (re-evaluated with the
+        online model) before a replan is advised; default 0
+    planner_kwargs : extra keyword arguments of ``plan_tour`` (default: BIT* refinement off,
+        so a replan depends only on its inputs and the seed)
+    memory_s, window_s : the online estimator's forgetting time and energy-per-metre window [s]
+
+    Attributes
+    ----------
+    plan : the current plan
+    ctx : the current context (its world gains the map updates; each update raises its
+        map's ``version``)
+    """
+
+    def __init__(self, ctx, plan: Plan | None = None, *, n_vertices: int = 3000, seed: int = 0,
+                 replan_margin_J: float | None = None, planner_kwargs: dict | None = None,
+                 memory_s: float = 300.0, window_s: float = 300.0):
+        margin = 0.0 if replan_margin_J is None else float(replan_margin_J)
+        if not math.isfinite(margin):
+            raise InputError(f"replan_margin_J = {replan_margin_J!r} must be a finite number")
+        if not (isinstance(n_vertices, int) and n_vertices >= 10):
+            raise InputError(f"n_vertices = {n_vertices!r} must be an integer >= 10")
+        self.ctx = ctx
+        self.n_vertices, self.seed, self.replan_margin_J = n_vertices, int(seed), margin
+        self.planner_kwargs = {"bitstar_legs": 0, **(planner_kwargs or {})}
+        self.memory_s, self.window_s = float(memory_s), float(window_s)
+        self._log = EventLog()
+        self._batch_cache: dict = {}
+        self._planner = None
+        self._home_reach = None  # (map version, reach, k-d tree of its vertices)
+        self._intake = Intake(ctx.model, ctx.scenario.battery.usable_J, memory_s=memory_s,
+                              window_s=window_s)
+        if plan is None:
+            plan = self._plan(StartState())
+        self._initial_plan = plan
+        self._intake.start_at(plan.xy_m[:1], float(plan.energy_used_J[0]), float(plan.t_s[0]))
+        self._adopt(plan)
+
+    # --- state ---------------------------------------------------------------------------
+    @property
+    def energy_used_J(self) -> float:
+        """Measured battery energy so far, sum of P dt from the plan's start energy, never
+        below 0 (``intake.energy_used_after``) [J]."""
+        return self._intake.energy_used_J
+
+    @property
+    def position_xy_m(self) -> tuple[float, float]:
+        return self._intake.position_xy_m
+
+    @property
+    def trail_xy_m(self) -> np.ndarray:
+        """Reported positions, the plan's start first (n, 2) [m]."""
+        return self._intake.trail_xy_m
+
+    @property
+    def covered(self):
+        """Area sensed so far (sensor footprint along the trail)."""
+        return self._intake.covered
+
+    @property
+    def time_s(self) -> float:
+        """Time of the last sample (the plan's start before any) [s]."""
+        return self._intake.time_s
+
+    @property
+    def _soc(self):
+        return self._intake.soc
+
+    @property
+    def _events(self) -> EventLog:
+        return self._log
+
+    @property
+    def energy_available_J(self) -> float:
+        """Usable energy counted on [J]: the scenario's, or the smaller capacity the
+        telemetry's state of charge shows (``capacity_from_soc``): an aged battery must not
+        be spent as if it were new."""
+        claimed = float(self.ctx.scenario.battery.usable_J)
+        shown = self._intake.soc.usable_J()
+        return claimed if shown is None else min(claimed, shown)
+
+    @property
+    def capacity_shortfall_J(self) -> float:
+        """Scenario usable energy minus the energy counted on [J] (>= 0)."""
+        return float(self.ctx.scenario.battery.usable_J) - self.energy_available_J
+
+    @property
+    def map_version(self) -> int:
+        """The current map's version (0: the scenario's map; +1 per update)."""
+        return self.ctx.world.map.version
+
+    @property
+    def online_model(self):
+        """The scenario model with the estimator's coefficients and covariance."""
+        def build():
+            est = self._intake.estimator
+            return self.ctx.model.with_theta(dict(zip(self.ctx.model.names, est.theta_)),
+                                             est.cov_)
+        return self._per_batch("online_model", build)
+
+    @property
+    def conditions_now(self):
+        """The context's conditions with the wind measured over the window (the scenario's
+        wind where the samples carry none)."""
+        def build():
+            window = self._intake.window
+            duration = sum(b.duration_s for b in window)
+            if duration <= 0:
+                return self.ctx.conditions
+            wx = sum(b.wind_dt_m[0] for b in window)
+            wy = sum(b.wind_dt_m[1] for b in window)
+            return self.ctx.conditions.with_wind((wx / duration, wy / duration))
+        return self._per_batch("conditions_now", build)
+
+    def _estimate(self):
+        """The online estimator's figures after the last batch."""
+        return self._per_batch("estimate", self._intake.estimator.estimate)
+
+    def _per_batch(self, name: str, build):
+        """A figure that only changes when a batch arrives or the map changes, built once
+        between those events (a decision reads each several times)."""
+        cache = self._batch_cache
+        if name not in cache:
+            cache[name] = build()
+        return cache[name]
+
+    def _new_batch(self) -> None:
+        self._batch_cache = {}
+
+    def _adopt(self, plan: Plan) -> None:
+        """Fly ``plan`` from now on; its figures were made with the current online model
+        and world."""
+        self.plan = plan
+        self._plan_model = self.online_model
+        self._plan_conditions = self.conditions_now
+        self._plan_map_version = self.map_version
+        self._progress = 0
+        for b in self._intake.window:
+            b.planned_J = None  # a new plan model: predict again
+
+    def adopt_stored_plan(self, geojson: dict) -> None:
+        """Fly a plan stored in the event log (a restored session's replan)."""
+        plan = plan_from_geojson(geojson)
+        self._log.plan(geojson)
+        self._adopt(plan)
+
+    # --- telemetry -----------------------------------------------------------------------
+    def feed(self, samples) -> Decision:
+        """Take a batch of samples and return the decision after it.
+
+        Parameters
+        ----------
+        samples : pandas DataFrame or list of dicts with the recording columns: ``t_s`` [s],
+            ``power_W`` [W] (or ``voltage_V`` and ``current_A``), ``x_m``, ``y_m`` [m], and
+            optionally ``v_mps``, ``yaw_rate_radps``, ``wind_mps``, ``wind_from_deg``... (any
+            other column is kept and ignored)
+
+        Raises
+        ------
+        InputError
+            One line: a missing column, a non-numeric or non-finite value in a needed column,
+            a negative time, time not increasing (within the batch or against the previous
+            batch), a position off the map (``world.positions.check_on_map``). A position on
+            the map but outside its free space is taken, and the decision flags it.
+        """
+        frame = validated_batch(samples, self.ctx.world, self._intake.t_last)
+        self._new_batch()
+        if self._intake.take(frame, self.ctx):  # a glitch must not move the progress on
+            self._progress = self._tour_progress()
+        self._log.feed(frame)
+        return self.decision()
+
+    def _tour_progress(self) -> int:
+        """Index of the tour segment the robot is on: the first one, from the last progress
+        on, within half a footprint of the nearest (a tour may pass a place twice)."""
+        xy = self.plan.xy_m
+        if len(xy) < 2:
+            return 0
+        a, b = xy[self._progress:-1], xy[self._progress + 1:]
+        d = _distance_to_segments(np.asarray(self.position_xy_m), a, b)
+        near = d <= d.min() + 0.5 * self.ctx.scenario.mission.sensor_radius_m
+        return self._progress + int(np.argmax(near))
+
+    # --- decision ------------------------------------------------------------------------
+    def decision(self) -> Decision:
+        """The decision now (``planning.session``: decision rule; ``decision.decide``)."""
+        return decide(self.homing_state())
+
+    def homing_state(self) -> HomingState:
+        """The figures the decision weighs, from the telemetry, the return home and the
+        plan's checks."""
+        used, avail = self.energy_used_J, self.energy_available_J
+        where = self._position_where()
+        free = where == "free"
+        return HomingState(
+            position_xy_m=self.position_xy_m, time_s=self.time_s, energy_used_J=used,
+            energy_available_J=avail, covered_m2=float(self.covered.area),
+            position_where=where, reserve=reserve_from(self.ctx.scenario),
+            home=self._return_home() if free else None,
+            energy_per_m_J=self._energy_per_m_J(),
+            map_changed=self.map_version != self._plan_map_version,
+            departure=self._departure() if free else None,
+            tour_margin_J=self._remaining_tour_margin_J(used, avail) if free else math.nan,
+            replan_margin_J=self.replan_margin_J)
+
+    def _position_where(self) -> str:
+        """"free" where the map allows the robot to be (``World.is_free``), else
+        "off_map" past the boundary or "in_obstacle"."""
+        world, (x, y) = self.ctx.world, self.position_xy_m
+        if bool(world.is_free(x, y)):
+            return "free"
+        return "in_obstacle" if world.true_map.boundary.intersects(shapely.Point(x, y)) \
+            else "off_map"
+
+    def _departure(self):
+        """(measured, plan-model predicted, predictive sd) energy per metre over the window
+        [J/m], or None while the window is too short to have a spread."""
+        window = self._intake.window
+        if len(window) < 2 * WINDOW_PARTS:
+            return None
+        dist = sum(b.distance_m for b in window)
+        if dist <= 0:
+            return None
+        measured = sum(b.measured_J for b in window) / dist
+        # the plan's prediction: its model under its conditions (its wind), on the motion driven
+        wx, wy = self._plan_conditions.wind_xy_mps
+        for b in window:  # each batch once per plan (a window holds up to ~150)
+            if b.planned_J is None:
+                b.planned_J = float(np.sum(np.asarray(self._plan_model.power_W(
+                    b.state.with_(wind_x_mps=wx, wind_y_mps=wy)), float) * b.dt))
+        predicted = sum(b.planned_J for b in window) / dist
+        sd = self._estimate().energy_per_m_sd_J
+        if not (math.isfinite(sd) and sd > 0):
+            return None
+        return measured, predicted, sd
+
+    def _energy_per_m_J(self) -> float:
+        """Online energy per metre of the recent motion; the plan model's flat-ground figure
+        before the robot has moved [J/m]."""
+        e = self._estimate().energy_per_m_J
+        if math.isfinite(e) and e > 0:
+            return float(e)
+        from orange_plan.physics.range import simplified_range
+
+        return simplified_range(self.ctx.scenario, self.online_model,
+                                self.ctx.world.default_crr).energy_per_m_J
+
+    def _return_home(self) -> Home:
+        """Best roadmap return from the position (free: ``homing_state`` asks only then),
+        driven from rest to rest and evaluated with the online model (energy and gradient
+        from one drive, as the tour's returns)."""
+        from orange_plan.planning.tour import drive
+
+        reach, tree = self._reach()
+        model = self.online_model
+        exact = replace(reach.exact, model=model, world=self.ctx.world,
+                        conditions=self.conditions_now)
+        back = way_home(replace(reach, exact=exact), self.position_xy_m, tree)
+        if back is None:
+            return Home(math.inf, 0.0, 0.0)
+        if len(back) < 2:  # at home
+            return Home(0.0, float(reach.reserve.return_only_J(
+                0.0, 0.0, self.energy_available_J)), 0.0)
+        driven = drive(exact, back, exact.speed_mps)
+        energy = float(driven.energy_J[-1])
+        var = float(model.energy_variance_J2(driven.gradient[-1]))
+        spread = self._relative_spread() * energy
+        sd = math.sqrt(max(var, 0.0) + spread**2)
+        res = float(reach.reserve.return_only_J(energy, sd**2, self.energy_available_J))
+        return Home(energy, res, sd)
+
+    def _relative_spread(self) -> float:
+        """The online estimator's predictive sd of the energy per metre over its value
+        (conditions: gusts, terrain, stops) [-]; 0 before it can say."""
+        est = self._estimate()
+        e, sd = est.energy_per_m_J, est.energy_per_m_sd_J
+        return float(sd / e) if (math.isfinite(e) and e > 0 and math.isfinite(sd)) else 0.0
+
+    def _reach(self):
+        """Roadmap and to-home field of the current world, and a k-d tree of its vertices
+        (built once per map version)."""
+        if self._home_reach is None or self._home_reach[0] != self.map_version:
+            reach = prepare_reach(self.ctx, None, 0.0, n_vertices=self.n_vertices,
+                                  seed=self.seed, with_gradient=False)
+            self._home_reach = (self.map_version, reach, cKDTree(reach.roadmap.xy_m))
+        return self._home_reach[1:]
+
+    def _remaining_tour_margin_J(self, used: float, avail: float) -> float:
+        """Smallest homing margin over the rest of the tour with the online model [J].
+
+        The rest of the tour is driven from the position at the plan's speeds and costed
+        exactly with the online model; each vertex's planned return and (confidence) reserve
+        are scaled by the ratio of online to planned energy of that rest, the same
+        terrain driven by both models.
+        """
+        plan, k = self.plan, self._progress
+        rest = np.vstack([self.position_xy_m, plan.xy_m[k + 1:]])
+        keep = distinct_vertices(rest)
+        speeds = plan.speed_mps[k:-1][keep[1:]]
+        rest = rest[keep]
+        if len(rest) < 2:
+            return avail - used - float(plan.reserve_J[-1])
+        world = self.ctx.world
+        online = path_energy(self.online_model, world, rest, speeds,
+                             self.conditions_now).cumulative_J
+        planned = path_energy(self._plan_model, world, rest, speeds,
+                              self._plan_conditions).cumulative_J
+        ratio = online[-1] / planned[-1] if planned[-1] > 0 else 1.0
+        idx = np.r_[k, k + 1 + np.flatnonzero(keep[1:])]
+        to_home = plan.energy_to_home_J[idx] * ratio
+        res = reserve_from(self.ctx.scenario).rescaled_J(plan.reserve_J[idx], ratio)
+        return float(np.min(avail - used - online - to_home - res))
+
+    # --- replanning ----------------------------------------------------------------------
+    def replan(self) -> Plan:
+        """A new tour from the current position, energy, time and covered area, with the
+        online model and the current world; it becomes the session's plan.
+
+        Raises
+        ------
+        InputError
+            When no tour fits (e.g. the robot should go home: the battery left cannot visit
+            anything new and come back), or the position is not in the map's free space.
+        """
+        # a battery smaller than the scenario's is planned as that much energy already spent
+        start = StartState(self.position_xy_m, self.energy_used_J + self.capacity_shortfall_J,
+                           self.time_s, None if self.covered.is_empty else self.covered)
+        plan = self._plan(start)
+        self._log.plan(plan.to_geojson())
+        self._adopt(plan)
+        return plan
+
+    def _plan(self, start: StartState) -> Plan:
+        """A tour with the online model and the current world. The first plan builds the
+        roadmap and candidate legs; later replans reuse them (``tour.TourPlanner``: a warm
+        replan only adds the robot's position to the roadmap), unless the map's version
+        changed."""
+        from orange_plan.planning.tour import TourPlanner
+
+        if self._planner is None:
+            self._planner = TourPlanner(self.ctx, n_vertices=self.n_vertices, seed=self.seed,
+                                        **self.planner_kwargs)
+        return self._planner.plan(start, model=self.online_model, world=self.ctx.world,
+                                  conditions=self.conditions_now)
+
+    # --- map updates ---------------------------------------------------------------------
+    def update_map(self, obstacles=(), no_go=(), replan: bool = True) -> Decision:
+        """Add obstacles and no-go zones (map frame) and, by default, replan around them.
+
+        Parameters
+        ----------
+        obstacles, no_go : shapely Polygons/MultiPolygons, GeoJSON geometry dicts, or
+            coordinate lists (a ring ``[[x, y], ...]`` or a Polygon's list of rings) [m]
+        replan : plan a new tour now (else the next decision says "replan")
+
+        Raises
+        ------
+        InputError
+            A polygon that is malformed, invalid or empty, or that covers the robot's
+            position or home or comes closer to them than the robot's keep-away
+            (``robot.radius_m + mission.clearance_m``) (one line, naming which polygon or
+            the distance).
+        """
+        new_obstacles = [_polygon(p, f"obstacles[{i}]") for i, p in enumerate(obstacles)]
+        new_no_go = [_polygon(p, f"no_go[{i}]") for i, p in enumerate(no_go)]
+        where = {"the robot's position": self.position_xy_m, "home": self.ctx.world.home_xy_m}
+        for name, poly in [*(("obstacles", p) for p in new_obstacles),
+                           *(("no_go", p) for p in new_no_go)]:
+            for what, xy in where.items():
+                if poly.intersects(shapely.Point(xy)):
+                    raise InputError(f"map update: a new {name} polygon covers {what} "
+                                     f"({xy[0]:g}, {xy[1]:g}) m; refused")
+        m = self.ctx.world.true_map
+        new_map = replace(m, obstacles=(*m.obstacles, *new_obstacles),
+                          no_go=(*m.no_go, *new_no_go), version=m.version + 1)
+        world = self.ctx.world.with_map(new_map)  # inflated by the robot's keep-away
+        for what, xy in where.items():  # refused only when this update brings the edge close
+            problem = world.clearance_problem(xy)
+            if problem and self.ctx.world.clearance_problem(xy) is None:
+                raise InputError(f"map update refused: {what} {problem}")
+        self.ctx = replace(self.ctx, world=world)
+        self._new_batch()
+        self._log.map_update(new_obstacles, new_no_go)
+        self._intake.covered = self._intake.covered.intersection(new_map.free_space)
+        if replan:
+            self.replan()
+        return self.decision()
+
+    # --- persistence ---------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        """Everything needed to rebuild the session (JSON-serialisable).
+
+        The session is an event log replayed on restore: the initial plan, then in order each
+        sample batch, map update and adopted plan. Replans are stored, not recomputed, so a
+        restored session is the same whatever planner time limits did.
+        """
+        return self._log.state({
+            "scenario": self.ctx.scenario.name,
+            "n_vertices": self.n_vertices, "seed": self.seed,
+            "replan_margin_J": self.replan_margin_J, "planner_kwargs": self.planner_kwargs,
+            "memory_s": self.memory_s, "window_s": self.window_s}, self._initial_plan)
+
+    @classmethod
+    def from_state(cls, ctx, state: dict) -> MissionSession:
+        """Rebuild a session from ``state_dict()`` (with the context it was made in).
+
+        Raises
+        ------
+        InputError
+            A state of another version or scenario, or a malformed event.
+        """
+        check_state(state, ctx.scenario.name)
+        session = cls(ctx, plan_from_geojson(state["plan"]), n_vertices=state["n_vertices"],
+                      seed=state["seed"], replan_margin_J=state["replan_margin_J"],
+                      planner_kwargs=state["planner_kwargs"], memory_s=state["memory_s"],
+                      window_s=state["window_s"])
+        replay_events(session, state["events"])
+        return session
+
+
+# --- helpers ------------------------------------------------------------------------------
+
+
+def _polygon(value, what: str):
+    """A valid, non-empty Polygon/MultiPolygon from shapely, a GeoJSON geometry or rings."""
+    geom = value
+    try:
+        if isinstance(value, dict):
+            geom = shape(value)
+        elif not hasattr(value, "geom_type"):
+            rings = np.asarray(value, float)
+            geom = Polygon(rings) if rings.ndim == 2 else Polygon(rings[0], list(rings[1:]))
+    except (TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise InputError(f"map update: {what} is not a polygon ({exc})") from None
+    if not isinstance(geom, (Polygon, MultiPolygon)) or geom.is_empty:
+        raise InputError(f"map update: {what} must be a non-empty Polygon or MultiPolygon")
+    if not geom.is_valid:
+        from shapely.validation import explain_validity
+
+        raise InputError(f"map update: {what} is invalid: {explain_validity(geom)}")
+    return geom
+
+
+def _distance_to_segments(p, a, b) -> np.ndarray:
+    ab = b - a
+    length2 = np.einsum("ij,ij->i", ab, ab)
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.where(length2 > 0, length2, 1.0), 0, 1)
+    return np.hypot(*(p - (a + t[:, None] * ab)).T)
