@@ -63,7 +63,7 @@ import pandas as pd
 import shapely
 from scipy.spatial import cKDTree
 from scipy.stats import norm
-from shapely.geometry import MultiPolygon, Polygon, shape
+from shapely.geometry import shape
 
 from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS, OnlineEstimator
@@ -76,6 +76,7 @@ from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import prepare_reach, reserve_J, way_home
 from orange_plan.telemetry.recording import recording_from_frame
 from orange_plan.telemetry.state import recording_state
+from orange_plan.world.geomap import keep_out_polygon
 
 ACTIONS = ("continue", "replan", "return_home")
 DEPARTURE_Z = 3.0
@@ -587,11 +588,16 @@ class MissionSession:
         Raises
         ------
         InputError
-            A polygon that is malformed, invalid or empty, or that covers the robot's
-            position or home (one line, naming which polygon).
+            A polygon that breaks the rules of a map file (``world.geomap.keep_out_polygon``:
+            malformed, a ring not closed, a coordinate not finite or too far, invalid, empty,
+            or outside the boundary), or that covers the robot's position or home (one
+            line, naming which polygon).
         """
-        new_obstacles = [_polygon(p, f"obstacles[{i}]") for i, p in enumerate(obstacles)]
-        new_no_go = [_polygon(p, f"no_go[{i}]") for i, p in enumerate(no_go)]
+        boundary = self.ctx.world.map.boundary  # a map file's rules (world.geomap)
+        new_obstacles = [keep_out_polygon(p, f"map update: obstacles[{i}]", boundary)
+                         for i, p in enumerate(obstacles)]
+        new_no_go = [keep_out_polygon(p, f"map update: no_go[{i}]", boundary)
+                     for i, p in enumerate(no_go)]
         where = {"the robot's position": self.position_xy_m, "home": self.ctx.world.home_xy_m}
         for name, poly in [*(("obstacles", p) for p in new_obstacles),
                            *(("no_go", p) for p in new_no_go)]:
@@ -695,26 +701,6 @@ def plan_from_geojson(data: dict) -> Plan:
                     if f.get("properties", {}).get("kind") == "covered"), None)
     return Plan(xy, waypoints_xy_m=np.asarray(waypoints, float).reshape(-1, 2), covered=covered,
                 summary=dict(data.get("summary", {})), **arrays)
-
-
-def _polygon(value, what: str):
-    """A valid, non-empty Polygon/MultiPolygon from shapely, a GeoJSON geometry or rings."""
-    geom = value
-    try:
-        if isinstance(value, dict):
-            geom = shape(value)
-        elif not hasattr(value, "geom_type"):
-            rings = np.asarray(value, float)
-            geom = Polygon(rings) if rings.ndim == 2 else Polygon(rings[0], list(rings[1:]))
-    except (TypeError, ValueError, AttributeError, IndexError) as exc:
-        raise InputError(f"map update: {what} is not a polygon ({exc})") from None
-    if not isinstance(geom, (Polygon, MultiPolygon)) or geom.is_empty:
-        raise InputError(f"map update: {what} must be a non-empty Polygon or MultiPolygon")
-    if not geom.is_valid:
-        from shapely.validation import explain_validity
-
-        raise InputError(f"map update: {what} is invalid: {explain_validity(geom)}")
-    return geom
 
 
 def _distance_to_segments(p, a, b) -> np.ndarray:
