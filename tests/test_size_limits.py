@@ -16,7 +16,11 @@ from hypothesis import strategies as st
 
 from orange_plan.context import load_context
 from orange_plan.errors import InputError, MapError
-from orange_plan.limits import MAX_COVERAGE_LATTICE_POINTS, MAX_ROADMAP_VERTICES
+from orange_plan.limits import (
+    MAX_COVERAGE_LATTICE_POINTS,
+    MAX_ELEVATION_CELLS,
+    MAX_ROADMAP_VERTICES,
+)
 from orange_plan.planning.coverage import check_sensor_radius, coverage_grid
 from orange_plan.planning.reach import prepare_reach
 from orange_plan.planning.tour import plan_tour
@@ -154,3 +158,17 @@ def test_map_updates_follow_the_map_file_rules(lab, case):
 def test_one_keep_out_rule_set_accepts_a_good_zone(lab):
     zone = {"type": "Polygon", "coordinates": [[[5, 4], [6, 4], [6, 5], [5, 5], [5, 4]]]}
     assert keep_out_polygon(zone, "zone", lab.world.map.boundary).area == 1.0
+
+
+# --- elevation rasters --------------------------------------------------------------------
+def test_an_elevation_raster_too_large_is_refused_before_it_is_read(tmp_path):
+    """Its header is enough: a 100,000 x 100,000 grid asked numpy for 37 GiB."""
+    (tmp_path / "huge.asc").write_text("ncols 100000\nnrows 100000\nxllcorner -10\n"
+                                       "yllcorner -10\ncellsize 1\nNODATA_value -9999\n0 0 0\n",
+                                       encoding="utf-8")
+    write_map(tmp_path, elevation="huge.asc")
+    scenario = write_scenario(tmp_path)
+    with pytest.raises(MapError, match=f"100000 x 100000 cells.*{MAX_ELEVATION_CELLS:,}"):
+        load_map(tmp_path / "yard.geojson")
+    code, _, err = run_cli("range", scenario)
+    assert code == 2 and f"{MAX_ELEVATION_CELLS:,}" in one_line(err)
