@@ -145,7 +145,7 @@ def test_planners_are_worker_processes():
 
 # --- generated families of bad sizes and bad geometries ------------------------------------
 TOML_RADII = st.one_of(
-    st.floats(5e-324, 1e-3).map(repr),  # tiny: over the coverage lattice limit
+    st.floats(5e-324, 0.01).map(repr),  # tiny: over the coverage lattice limit (11 mm)
     st.floats(1e3, 1e300).map(repr),  # huge: one footprint larger than the free space
     st.sampled_from(["nan", "inf", "-inf", "0.0", "-1.0", "-1e-9", "1e999"]),
 )

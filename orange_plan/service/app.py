@@ -1,9 +1,11 @@
 """The HTTP API (FastAPI): missions, telemetry, decisions, map updates, replans, plans.
 
-Planning runs inside the request: the endpoints are plain ``def`` functions, so FastAPI runs
-them in its worker threadpool and the event loop stays free (the operator page and other
-missions keep being served while one mission plans). Creating a mission, a map update with
-``replan`` and a replan answer when the new plan is ready, after some seconds.
+Planning runs while the request waits, in a planning worker process within the request's
+memory and time budget (``service.worker``; over it: 422). The endpoints are plain ``def``
+functions, so FastAPI runs them in its worker threadpool and the event loop stays free (the
+operator page and other missions keep being served while one mission plans). Creating a
+mission, a map update with ``replan`` and a replan answer when the new plan is ready, after
+some seconds.
 """
 
 from __future__ import annotations
@@ -182,7 +184,8 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
         (default: the repository's ``scenarios/`` and ``maps/``)
     limits : request size limits
     sessions : how sessions are made and restored (default ``missions.SessionKind``)
-    warm_up : rebuild stored missions in a background thread at start-up
+    warm_up : rebuild stored missions in a background thread at start-up, and start the
+        planning workers' forkserver (which loads the planner) at once
 
     Raises
     ------
@@ -202,6 +205,7 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
     async def lifespan(app: FastAPI):
         if warm_up:
             registry.warm_up()
+            registry.planners.start()
         yield
         store.close()
 

@@ -11,6 +11,10 @@ stored). Nothing is planned again, so the rebuilt session gives the same decisio
 same plan as before the restart; replaying is fast (no planning), and
 ``MissionRegistry.warm_up`` does it for every mission in a background thread at start-up.
 A request to a mission still being rebuilt waits for it.
+
+Planning (a new mission's first tour, a replan) runs in a planning worker process
+(``service.worker``), which answers with the plan's GeoJSON; the session then adopts it by
+the same replay, with the plan as its last event.
 """
 
 from __future__ import annotations

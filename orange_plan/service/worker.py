@@ -28,10 +28,10 @@ from dataclasses import dataclass
 from orange_plan.errors import InputError, OrangeError
 
 PRELOAD = ["orange_plan.service.worker", "orange_plan.service.missions",
-           "orange_plan.planning.session", "orange_plan.planning.tour", "orange_plan.context",
-           "ompl.base", "ompl.geometric", "casadi", "numba"]
+           "orange_plan.service.warm_up"]
 """Modules the forkserver imports once, so that each planning child starts ready (and a
-child's memory budget is not spent on mapping shared libraries)."""
+child's memory budget is not spent on mapping shared libraries): ``warm_up`` plans a small
+tour on import."""
 
 OUT_OF_MEMORY = ("failed to map segment", "load shared object", "cannot allocate memory",
                  "can't start new thread", "bad_alloc")
@@ -75,6 +75,14 @@ class Planners:
         self.budget = budget
         self._slots = threading.BoundedSemaphore(max(1, int(budget.workers)))
 
+    def start(self) -> None:
+        """Start the forkserver now (it then loads the planner in the background), so that
+        the first plan does not wait for it."""
+        from multiprocessing import forkserver
+
+        self._context()
+        forkserver.ensure_running()
+
     def run(self, func, *args, what: str = "planning"):
         """``func(*args)`` in a child process; its return value (picklable), or the error.
 
@@ -103,8 +111,7 @@ class Planners:
         raise self._failure(status, value, what)
 
     def _in_child(self, func, args) -> tuple[str, object]:
-        mp = multiprocessing.get_context("forkserver")
-        mp.set_forkserver_preload(PRELOAD)
+        mp = self._context()
         receive, send = mp.Pipe(duplex=False)
         child = mp.Process(target=_child, args=(send, func, args, self.budget.memory_bytes),
                            name="orange-plan-planner", daemon=True)
@@ -124,6 +131,12 @@ class Planners:
                 child.kill()
             child.join(5.0)
             child.close()
+
+    @staticmethod
+    def _context():
+        mp = multiprocessing.get_context("forkserver")
+        mp.set_forkserver_preload(PRELOAD)
+        return mp
 
     def _failure(self, status: str, value, what: str) -> OrangeError:
         budget = self.budget
@@ -145,7 +158,6 @@ class Planners:
 
 def _child(send, func, args, memory_bytes: int) -> None:
     """In the child: limit the address space, run, send ("ok", value) or the failure."""
-    _load_solver_plugins()
     base = _address_space_bytes()
     _, hard = resource.getrlimit(resource.RLIMIT_AS)
     limit = base + int(memory_bytes)
@@ -173,17 +185,6 @@ def _answer(func, args) -> tuple[str, object]:
                 any(sign in str(exc).lower() for sign in OUT_OF_MEMORY):
             return "memory", None
         return "crash", f"{type(exc).__name__}: {exc}"
-
-
-def _load_solver_plugins() -> None:
-    """Load what the speed optimiser loads on first use (CasADi's IPOPT plugin), before the
-    budget counts: a library that cannot be mapped is not an answer about the request."""
-    import casadi as ca
-
-    x = ca.MX.sym("x")
-    solver = ca.nlpsol("warm_up", "ipopt", {"x": x, "f": (x - 1) ** 2},
-                       {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes"})
-    solver(x0=0.0)
 
 
 def _address_space_bytes() -> int:
