@@ -100,16 +100,18 @@ def test_a_radius_that_is_no_length_is_refused(lab, r):
         check_sensor_radius(lab.world, r)
 
 
-@pytest.mark.parametrize("r", [1e-9, 0.001, 0.02, 1e200, 1e300])
-def test_cli_plan_refuses_a_sensor_radius_out_of_scale_at_once(tmp_path, r):
+@pytest.mark.parametrize(("r", "why"), [
+    (1e-9, f"{MAX_COVERAGE_LATTICE_POINTS:,}"), (0.001, f"{MAX_COVERAGE_LATTICE_POINTS:,}"),
+    (0.02, f"{MAX_COVERAGE_LATTICE_POINTS:,}"), (1e200, "footprint"), (1e300, "footprint"),
+    (math.nan, "finite"), (-1.0, "> 0")])
+def test_cli_plan_refuses_a_sensor_radius_out_of_scale_at_once(tmp_path, r, why):
     """Tiny: over the lattice limit; huge: one footprint is larger than the free space
-    (r**2 raised OverflowError, exit 1, for 1e200)."""
+    (r**2 raised OverflowError, exit 1, for 1e200); not a length: the scenario's rule."""
     scenario = write_scenario(tmp_path, {"mission.sensor_radius_m": r})
     code, _, err = run_cli("plan", scenario, "-o", tmp_path / "p.geojson", "--vertices", "100")
     assert code == 2, err
     line = one_line(err)
-    assert "sensor_radius_m" in line
-    assert f"{MAX_COVERAGE_LATTICE_POINTS:,}" in line if r < 1 else "footprint" in line
+    assert "sensor_radius_m" in line and why in line
 
 
 # --- keep-out zones: one rule set for map files and map updates ---------------------------
@@ -132,6 +134,8 @@ def test_map_files_refuse_bad_keep_out_zones(tmp_path, case):
     features = [*copy.deepcopy(base_features()), feature("obstacle", "Polygon", coords)]
     with pytest.raises(MapError, match=f"feature 4 \\(obstacle\\).*({why})"):
         load_map(write_map(tmp_path, features))
+    code, _, err = run_cli("range", write_scenario(tmp_path))
+    assert code == 2 and "feature 4 (obstacle)" in one_line(err)
 
 
 @pytest.mark.parametrize("case", sorted(BAD_KEEP_OUT))

@@ -253,18 +253,30 @@ def map_geometry(geometry, what: str):
         ``MAX_COORD_M`` (one line naming ``what``).
     """
     if hasattr(geometry, "geom_type"):
-        geom = geometry
-    else:
-        geometry = _as_geojson(geometry, what)
-        try:
-            geom = shape(geometry)
-        except Exception as exc:  # noqa: BLE001 - shapely raises several types here
-            raise MapError(f"{what} has malformed geometry ({exc})") from None
-    if not geom.is_empty and not _finite_and_bounded(geom):
+        _check_coordinates(shapely.get_coordinates(geometry), what)
+        return geometry
+    geometry = _as_geojson(geometry, what)
+    _check_coordinates(np.fromiter(_numbers(geometry.get("coordinates")), float), what)
+    _check_rings_closed(geometry, what)
+    try:
+        return shape(geometry)
+    except Exception as exc:  # noqa: BLE001 - shapely raises several types here
+        raise MapError(f"{what} has malformed geometry ({exc})") from None
+
+
+def _check_coordinates(numbers: np.ndarray, what: str) -> None:
+    if not (np.all(np.isfinite(numbers)) and np.all(np.abs(numbers) <= MAX_COORD_M)):
         raise MapError(f"{what} has a coordinate that is not finite or lies beyond "
                        f"{MAX_COORD_M:g} m from the origin")
-    _check_rings_closed(geometry, what)
-    return geom
+
+
+def _numbers(coordinates):
+    """Every number in nested GeoJSON coordinates (anything else is left to shapely)."""
+    if isinstance(coordinates, (int, float)) and not isinstance(coordinates, bool):
+        yield float(coordinates)
+    elif isinstance(coordinates, (list, tuple)):
+        for item in coordinates:
+            yield from _numbers(item)
 
 
 def _as_geojson(geometry, what: str):
@@ -272,6 +284,9 @@ def _as_geojson(geometry, what: str):
     GeoJSON Polygon."""
     if isinstance(geometry, dict):
         return geometry
+    if not isinstance(geometry, (list, tuple, np.ndarray)):
+        raise MapError(f"{what} is not a GeoJSON geometry nor polygon coordinates, got "
+                       f"{type(geometry).__name__}")
     try:
         rings = np.asarray(geometry, float)
     except (TypeError, ValueError) as exc:
@@ -280,11 +295,6 @@ def _as_geojson(geometry, what: str):
         raise MapError(f"{what} is not a polygon: coordinates must be a ring [[x, y], ...] or "
                        f"a list of rings, got an array of shape {rings.shape}")
     return {"type": "Polygon", "coordinates": (rings[None] if rings.ndim == 2 else rings).tolist()}
-
-
-def _finite_and_bounded(geom) -> bool:
-    xy = shapely.get_coordinates(geom)
-    return bool(np.all(np.isfinite(xy)) and np.all(np.abs(xy) <= MAX_COORD_M))
 
 
 def _check_rings_closed(geometry, what: str) -> None:
