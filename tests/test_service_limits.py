@@ -94,6 +94,14 @@ def test_vertices_beyond_the_limit_are_refused(served):
     still_served(c, mid)
 
 
+def resident_bytes() -> int:
+    """This (the server's) process's resident memory [bytes]."""
+    import os
+
+    with open("/proc/self/statm", encoding="ascii") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
 def hog_memory(*_args):
     """A stand-in planner that asks for 8 GiB at once."""
     return len(bytearray(8 * 2**30))
@@ -122,10 +130,12 @@ def test_a_plan_over_its_budget_is_stopped_with_a_clear_4xx(served, monkeypatch,
     monkeypatch.setattr(registry, "planners", Planners(budget))
     for name in ("plan_first", "plan_again"):
         monkeypatch.setattr(missions, name, planner)
+    before = resident_bytes()
     r = c.post("/missions", json={"scenario": "rusti_v1_box", "n_vertices": 300})
     assert word in clear_4xx(r, 422)
     r = c.post(f"/missions/{mid}/replan")
     assert word in clear_4xx(r, 422)
+    assert resident_bytes() - before < 200 * 2**20  # the 8 GiB were asked for elsewhere
     still_served(c, mid)
     monkeypatch.undo()
     r = c.post(f"/missions/{mid}/replan")

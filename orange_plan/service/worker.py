@@ -125,6 +125,8 @@ class Planners:
             except EOFError:  # the child died before answering
                 child.join(5.0)
                 return "died", child.exitcode
+            except Exception as exc:  # noqa: BLE001 - an answer that cannot be unpickled
+                return "crash", f"unreadable answer ({type(exc).__name__}: {exc})"
         finally:
             receive.close()
             if child.is_alive():
