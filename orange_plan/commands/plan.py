@@ -19,6 +19,7 @@ from orange_plan.cli import (
     print_json,
     warn,
 )
+from orange_plan.limits import MAX_ROADMAP_VERTICES, MIN_ROADMAP_VERTICES
 from orange_plan.paths import check_output
 from orange_plan.progress import stages, wanted
 
@@ -41,7 +42,8 @@ def plan_cmd(
     cost: Annotated[str, typer.Option(
         help="Edge cost: 'physics' (the energy model) or 'distance' (constant energy per "
              "metre on flat default ground, for comparison).")] = "physics",
-    vertices: Annotated[int, typer.Option(help="Roadmap vertices.")] = 5000,
+    vertices: Annotated[int, typer.Option(
+        help=f"Roadmap vertices ({MIN_ROADMAP_VERTICES} to {MAX_ROADMAP_VERTICES:,}).")] = 5000,
     seed: Annotated[int, typer.Option(help="Roadmap random seed.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:

@@ -20,6 +20,7 @@ from orange_plan.cli import (
     print_json,
     warn,
 )
+from orange_plan.limits import MAX_ROADMAP_VERTICES, MIN_ROADMAP_VERTICES
 from orange_plan.progress import stages, wanted
 
 
@@ -38,7 +39,8 @@ def reach_cmd(
         "--goals", help="CSV with columns x_m, y_m (optional name).")] = None,
     png: Annotated[Path | None, typer.Option(
         "--png", help="Write a PNG of the feasible region (colour = margin).")] = None,
-    vertices: Annotated[int, typer.Option(help="Roadmap vertices.")] = 5000,
+    vertices: Annotated[int, typer.Option(
+        help=f"Roadmap vertices ({MIN_ROADMAP_VERTICES} to {MAX_ROADMAP_VERTICES:,}).")] = 5000,
     seed: Annotated[int, typer.Option(help="Roadmap random seed.")] = 0,
     as_json: JsonOpt = False,
 ) -> None:

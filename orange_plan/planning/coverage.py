@@ -29,6 +29,7 @@ from shapely.geometry import LineString, Point
 from shapely.geometry.base import BaseGeometry
 
 from orange_plan.errors import InputError, close_match_hint
+from orange_plan.limits import MAX_COVERAGE_CELLS, MAX_COVERAGE_LATTICE_POINTS, smallest_radius_m
 
 CELLS_PER_RADIUS = 3
 """Default cell side is r / 3: a disc of radius r then holds ~28 cells (area error ~ 5 %)."""
@@ -53,6 +54,9 @@ POCKET_ROUNDS = 4
 """Rounds of extra viewpoints placed on cells no candidate senses."""
 
 KINDS = ("lane", "viewpoint")
+
+HEX_AREA_PER_R2 = 1.5 * math.sqrt(3.0)
+"""Area of one viewpoint lattice cell over r^2 (spacing r sqrt 3 by rows 1.5 r apart)."""
 
 _BATCH_POINTS = 2_000_000  # lattice points tested per vectorised batch: bounds memory (~100 MB)
 
@@ -172,7 +176,8 @@ class CoverageGrid:
         return seg[keep], cell[keep]
 
 
-def coverage_grid(world, sensor_radius_m: float, max_cells: int = 400_000) -> CoverageGrid:
+def coverage_grid(world, sensor_radius_m: float,
+                  max_cells: int = MAX_COVERAGE_CELLS) -> CoverageGrid:
     """Discretise the free space into square cells of side ~ r / 3.
 
     Parameters
@@ -188,14 +193,15 @@ def coverage_grid(world, sensor_radius_m: float, max_cells: int = 400_000) -> Co
     Raises
     ------
     InputError
-        Non-positive or non-finite radius, max_cells < 1, or a free space holding no cell.
+        Non-positive or non-finite radius, a radius too small for the map
+        (``check_sensor_radius``), max_cells < 1, or a free space holding no cell.
 
     Notes
     -----
     A cell is free when its centre is in the free space. Counted area ``M * cell_m^2``
     differs from the exact free area by at most about ``perimeter * cell_m / 2``.
     """
-    r = _positive(sensor_radius_m, "sensor_radius_m")
+    r = check_sensor_radius(world, sensor_radius_m)
     if (isinstance(max_cells, bool) or not isinstance(max_cells, (int, np.integer))
             or max_cells < 1):
         raise InputError(f"max_cells = {max_cells!r} must be an integer >= 1")
@@ -325,7 +331,7 @@ def best_sweep_angle_deg(world, sensor_radius_m) -> float:
     is crossed by ``s_k`` when ``lo <= s_k < hi``, counted for all lines by binary search.
     Each piece is a turn the tour must make, so fewer pieces means shorter, cheaper tours.
     """
-    r = _positive(sensor_radius_m, "sensor_radius_m")
+    r = check_sensor_radius(world, sensor_radius_m)
     return _best_angle(world.true_map.free_space, r)
 
 
@@ -353,7 +359,7 @@ def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
     Raises
     ------
     InputError
-        Bad radius, angle, kinds, max_lane_m or region, or a free space with room for no
+        Bad radius (or one too small for the map: ``check_sensor_radius``), angle, kinds, max_lane_m or region, or a free space with room for no
         candidate of the requested kinds (before the region filter; an empty region gives an
         empty result).
 
@@ -375,7 +381,7 @@ def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
     viewpoint is placed on the uncovered cell nearest each bucket's centroid (moved to the
     nearest point of the eroded free space if that cell is within the clearance).
     """
-    r = _positive(sensor_radius_m, "sensor_radius_m")
+    r = check_sensor_radius(world, sensor_radius_m)
     kinds = _kinds(kinds)
     if not isinstance(grid, CoverageGrid):
         raise InputError(
@@ -421,6 +427,48 @@ def coverage_candidates(world, grid: CoverageGrid, sensor_radius_m: float,
         anchor = candidates.anchor_xy_m
         candidates = candidates.subset(shapely.intersects_xy(region, anchor[:, 0], anchor[:, 1]))
     return candidates
+
+
+def check_sensor_radius(world, sensor_radius_m) -> float:
+    """The sensor radius as a float, if the map's candidate lattices fit the limits.
+
+    Parameters
+    ----------
+    world : orange_plan.world.terrain.World
+    sensor_radius_m : footprint radius r [m]
+
+    Returns
+    -------
+    r [m], finite and > 0.
+
+    Raises
+    ------
+    InputError
+        A radius that is not a finite number > 0, or one so small for the map that the
+        viewpoint lattice over the boundary's bounding box (``_hex_shape``; the sweep lanes
+        are fewer) would hold more than ``limits.MAX_COVERAGE_LATTICE_POINTS`` points. One
+        line naming ``sensor_radius_m``, the limit and the smallest radius this map allows.
+
+    Notes
+    -----
+    Checked before any lattice, lane or grid is allocated: the lattice has about
+    ``A / (2.6 r^2)`` points for a bounding box of area A, so a radius of 1e-9 m on a room
+    would have asked for 10^19 of them.
+    """
+    r = _positive(sensor_radius_m, "sensor_radius_m")
+    xmin, ymin, xmax, ymax = world.map.boundary.bounds
+    # in floats, where a radius of 1e-300 m gives inf instead of a 10^300-digit integer; at
+    # least the ``_hex_shape`` count (its ceil() adds less than one row and one column)
+    points = ((xmax - xmin) / (r * math.sqrt(3.0)) + 3.0) * ((ymax - ymin) / (1.5 * r) + 2.0)
+    if points > MAX_COVERAGE_LATTICE_POINTS:
+        area = (xmax - xmin) * (ymax - ymin)
+        least = smallest_radius_m(area, HEX_AREA_PER_R2, MAX_COVERAGE_LATTICE_POINTS)
+        raise InputError(
+            f"sensor_radius_m = {r:g} m is too small for this map ({xmax - xmin:g} x "
+            f"{ymax - ymin:g} m): its coverage lattice would have {points:.3g} points, more "
+            f"than the limit of {MAX_COVERAGE_LATTICE_POINTS:,}; use sensor_radius_m >= "
+            f"{1.01 * least:.3g} m")
+    return r
 
 
 def footprint(world, path_xy_m, sensor_radius_m):
@@ -620,14 +668,21 @@ def _clip_lines(edges, offsets, u, nrm):
     return line[0::2], tc[0::2], tc[1::2]
 
 
+def _hex_shape(bounds, r: float) -> tuple[int, int]:
+    """Columns and rows (nx, ny) of the hexagonal lattice (spacing r sqrt 3, rows 1.5 r
+    apart) over a bounding box (xmin, ymin, xmax, ymax) [m]."""
+    xmin, ymin, xmax, ymax = bounds
+    return (math.ceil((xmax - xmin) / (r * math.sqrt(3.0))) + 2,
+            math.ceil((ymax - ymin) / (1.5 * r)) + 1)
+
+
 def _hex_points(inner, r: float) -> np.ndarray:
     """Hexagonal lattice (spacing r sqrt 3, covering radius r) points inside ``inner``."""
     if inner.is_empty:
         return np.zeros((0, 2))
-    xmin, ymin, xmax, ymax = inner.bounds
+    xmin, ymin, _, ymax = inner.bounds
     dx, dy = r * math.sqrt(3.0), 1.5 * r
-    ny = math.ceil((ymax - ymin) / dy) + 1
-    nx = math.ceil((xmax - xmin) / dx) + 2
+    nx, ny = _hex_shape(inner.bounds, r)
     rows = ymin + (np.arange(ny) - 0.5 * (ny - 1 - (ymax - ymin) / dy)) * dy
     cols = xmin - 0.5 * dx + np.arange(nx) * dx
     gx, gy = np.meshgrid(cols, rows)

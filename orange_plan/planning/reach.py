@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from orange_plan.errors import InputError, NamedInputError
+from orange_plan.limits import check_roadmap_vertices
 from orange_plan.mission import TimeLimitCheck, check_time_limit
 from orange_plan.physics.pathcost import MAX_STEP_M, path_energy
 from orange_plan.planning.paths import clean_polyline, dedupe, evaluate_path, path_gradient
@@ -198,9 +199,11 @@ def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: in
     Raises
     ------
     InputError
-        If ``energy_used_J`` is negative or exceeds the available energy, ``time_used_s`` is
+        If ``n_vertices`` is outside the limits (``limits.check_roadmap_vertices``),
+        ``energy_used_J`` is negative or exceeds the available energy, ``time_used_s`` is
         negative, or the start is not in free space.
     """
+    check_roadmap_vertices(n_vertices)
     available = ctx.scenario.battery.usable_J
     if not (np.isfinite(energy_used_J) and 0.0 <= energy_used_J <= available):
         raise NamedInputError("energy_used_J", f"{{name}} = {float(energy_used_J):g} must be "

@@ -18,7 +18,8 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from orange_plan.errors import InputError, PlanningError
+from orange_plan.errors import PlanningError
+from orange_plan.limits import check_roadmap_vertices
 from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import (
     Steps,
@@ -306,10 +307,9 @@ def build_roadmap(cost: EdgeCostContext, n_vertices: int = 5000, seed: int = 0,
     Raises
     ------
     InputError
-        If ``n_vertices`` < 2.
+        If ``n_vertices`` is outside the limits (``limits.check_roadmap_vertices``).
     """
-    if n_vertices < 2:
-        raise InputError(f"n_vertices = {n_vertices} must be >= 2")
+    n_vertices = check_roadmap_vertices(n_vertices)
     extra = surface_samples(cost.world, int(surface_fraction * n_vertices), seed)
     xy, pairs = roadmap_geometry(cost.world, cost.terrain, n_vertices - len(extra), seed,
                                  max_neighbors)

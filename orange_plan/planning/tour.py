@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import time as _time
 from dataclasses import dataclass, field, replace
 
@@ -39,12 +40,14 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from orange_plan.errors import InputError, PlanningError
+from orange_plan.limits import check_roadmap_vertices
 from orange_plan.mission import check_time_limit
 from orange_plan.physics.pathcost import path_energy, segments_energy_jacobian, subdivide
 from orange_plan.planning import orienteering
 from orange_plan.planning.coverage import (
     DEFAULT_MAX_LANE_FRACTION,
     Candidates,
+    check_sensor_radius,
     coverage_candidates,
     coverage_grid,
     footprint,
@@ -130,7 +133,8 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     Raises
     ------
     InputError
-        For an impossible request: start not in free space, home unreachable from the start,
+        For an impossible request: roadmap vertices or a sensor radius beyond the size
+        limits (``orange_plan.limits``), start not in free space, home unreachable from the start,
         no coverage candidate that can be visited with the way home kept, a time limit already
         spent.
     """
@@ -138,6 +142,7 @@ def plan_tour(ctx, start: StartState | None = None, *, cost: str = "physics",
     step = progress or (lambda text: None)
     if cost not in COST_MODES:
         raise InputError(f"cost = {cost!r} must be one of {COST_MODES}")
+    check_roadmap_vertices(n_vertices)
     start = start or StartState()
     planning_ctx = ctx if cost == "physics" else distance_context(ctx)
     step("building the energy roadmap")
@@ -505,6 +510,8 @@ def _time_left_s(ctx, start: StartState) -> float:
 def tour_setup(ctx, start: StartState, n_vertices: int, seed: int, max_candidates: int,
                step) -> TourSetup:
     """Roadmap and fields, coverage candidates that fit the battery, and their leg matrices."""
+    check_roadmap_vertices(n_vertices)  # sizes first: nothing is built before they pass
+    check_sensor_radius(ctx.world, ctx.scenario.mission.sensor_radius_m)
     _check_not_boxed_in(ctx)
     reach = prepare_reach(ctx, start.xy_m, start.energy_used_J, n_vertices=n_vertices, seed=seed,
                           speed_mps=tour_speed_mps(ctx, start), with_gradient=True)
@@ -534,15 +541,16 @@ def _check_not_boxed_in(ctx) -> None:
     home = shapely.Point(ctx.world.home_xy_m)
     pocket = next((g for g in getattr(free, "geoms", [free]) if g.intersects(home)), None)
     r = ctx.scenario.mission.sensor_radius_m
-    if pocket is None or pocket.area >= np.pi * r**2:
+    disc_m2 = math.pi * r * r  # inf, not OverflowError as r**2 raises, for r = 1e200 m
+    if pocket is None or pocket.area >= disc_m2:
         return
     if pocket.area >= free.area * (1 - 1e-9):  # nothing walls home in: the footprint is huge
         raise InputError(f"mission.sensor_radius_m = {r:g} m: one sensor footprint "
-                         f"({np.pi * r**2:.3g} m^2) is larger than the whole free area "
+                         f"({disc_m2:.3g} m^2) is larger than the whole free area "
                          f"({free.area:.3g} m^2); nothing to explore")
     raise InputError(f"home is boxed in: the free area around it is {pocket.area:.3g} m^2 "
                      f"(of {free.area:.3g} m^2), less than one sensor footprint "
-                     f"({np.pi * r**2:.3g} m^2); nothing to explore")
+                     f"({disc_m2:.3g} m^2); nothing to explore")
 
 
 def _mask(grid, cells) -> np.ndarray:

@@ -1,9 +1,11 @@
 """The HTTP API (FastAPI): missions, telemetry, decisions, map updates, replans, plans.
 
-Planning runs inside the request: the endpoints are plain ``def`` functions, so FastAPI runs
-them in its worker threadpool and the event loop stays free (the operator page and other
-missions keep being served while one mission plans). Creating a mission, a map update with
-``replan`` and a replan answer when the new plan is ready, after some seconds.
+Planning runs while the request waits, in a planning worker process within the request's
+memory and time budget (``service.worker``; over it: 422). The endpoints are plain ``def``
+functions, so FastAPI runs them in its worker threadpool and the event loop stays free (the
+operator page and other missions keep being served while one mission plans). Creating a
+mission, a map update with ``replan`` and a replan answer when the new plan is ready, after
+some seconds.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from orange_plan import __version__
 from orange_plan.errors import InputError, NamedInputError, OrangeError, plain_message
+from orange_plan.limits import MAX_ROADMAP_VERTICES
 from orange_plan.service.limits import BodySizeLimit, Limits
 from orange_plan.service.missions import (
     MissionNotFound,
@@ -40,6 +43,7 @@ from orange_plan.service.missions import (
 )
 from orange_plan.service.scenarios import ScenarioLibrary
 from orange_plan.service.store import Store
+from orange_plan.service.worker import PlannerBusy, PlannerFailed, Planners
 
 TOKEN_ENV = "ORANGE_PLAN_TOKEN"
 STATIC = Path(str(resources.files("orange_plan.service") / "static"))
@@ -103,7 +107,7 @@ class MissionCreate(BaseModel):
     scenario_toml: str | None = Field(
         None, description="a scenario's TOML text (SPEC §2); its 'map' names a map in maps/, "
                           "e.g. 'lab_box' or '../maps/lab_box.geojson'")
-    n_vertices: int = Field(3000, ge=50, le=20_000, description="roadmap vertices")
+    n_vertices: int = Field(3000, ge=50, le=MAX_ROADMAP_VERTICES, description="roadmap vertices")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="roadmap random seed")
 
 
@@ -181,7 +185,8 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
         (default: the repository's ``scenarios/`` and ``maps/``)
     limits : request size limits
     sessions : how sessions are made and restored (default ``missions.SessionKind``)
-    warm_up : rebuild stored missions in a background thread at start-up
+    warm_up : rebuild stored missions in a background thread at start-up, and start the
+        planning workers' forkserver (which loads the planner) at once
 
     Raises
     ------
@@ -194,12 +199,14 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
         raise InputError(f"{TOKEN_ENV} is set but empty: set a token or unset the variable")
     limits = limits or Limits()
     store = Store(db)
-    registry = MissionRegistry(store, ScenarioLibrary(scenarios_dir, maps_dir), sessions)
+    registry = MissionRegistry(store, ScenarioLibrary(scenarios_dir, maps_dir), sessions,
+                               Planners(limits.budget()))
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         if warm_up:
             registry.warm_up()
+            registry.planners.start()
         yield
         store.close()
 
@@ -442,7 +449,8 @@ def _handlers(app: FastAPI) -> None:
 
     # Our own errors by status; OrangeError that is not input is a request that cannot be met
     # (e.g. no tour keeps the homing constraint from here).
-    answers = {MissionNotFound: 404, InputError: 422, MissionUnavailable: 503, OrangeError: 409}
+    answers = {MissionNotFound: 404, InputError: 422, MissionUnavailable: 503,
+               PlannerBusy: 503, PlannerFailed: 503, OrangeError: 409}
     for kind, code in answers.items():
         app.add_exception_handler(kind, _one_line(code))
 

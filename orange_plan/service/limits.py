@@ -1,4 +1,4 @@
-"""Request size limits.
+"""Request size limits and the planning budget of one request.
 
 ``BodySizeLimit`` is a pure ASGI middleware: a request whose ``Content-Length`` exceeds the
 limit is answered 413 before its body is read, and a body sent without a length (chunked) is
@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
+from orange_plan.service.worker import Budget
+
 
 @dataclass(frozen=True)
 class Limits:
@@ -22,12 +24,26 @@ class Limits:
     max_samples : telemetry samples in one batch
     max_scenario_bytes : inline scenario TOML [bytes]
     max_geometry_vertices : vertices in one map update
+    plan_memory_bytes : memory a plan (a new mission's first tour, a replan) may take in its
+        planning worker, beyond what the worker starts with [bytes]
+    plan_seconds : time a plan may take before its worker is stopped [s]
+    planners : planning workers at once (each within the two budgets above)
+
+    The sizes a mission may ask for (roadmap vertices, the sensor radius against its map)
+    are limited by ``orange_plan.limits``, the same limits as on the command line.
     """
 
     max_body_bytes: int = 8 * 1024 * 1024
     max_samples: int = 50_000
     max_scenario_bytes: int = 64 * 1024
     max_geometry_vertices: int = 10_000
+    plan_memory_bytes: int = 4 * 2**30
+    plan_seconds: float = 300.0
+    planners: int = 2
+
+    def budget(self) -> Budget:
+        """What one planning request may use."""
+        return Budget(self.plan_memory_bytes, self.plan_seconds, self.planners)
 
 
 class BodySizeLimit:

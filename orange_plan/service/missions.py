@@ -11,6 +11,10 @@ stored). Nothing is planned again, so the rebuilt session gives the same decisio
 same plan as before the restart; replaying is fast (no planning), and
 ``MissionRegistry.warm_up`` does it for every mission in a background thread at start-up.
 A request to a mission still being rebuilt waits for it.
+
+Planning (a new mission's first tour, a replan) runs in a planning worker process
+(``service.worker``), which answers with the plan's GeoJSON; the session then adopts it by
+the same replay, with the plan as its last event.
 """
 
 from __future__ import annotations
@@ -29,8 +33,10 @@ import shapely
 from shapely.geometry import mapping, shape
 
 from orange_plan.errors import InputError, OrangeError
+from orange_plan.service.limits import Limits
 from orange_plan.service.scenarios import ScenarioLibrary, ScenarioSource
 from orange_plan.service.store import MissionRow, Store
+from orange_plan.service.worker import Planners
 
 log = logging.getLogger("orange_plan.service")
 
@@ -48,6 +54,19 @@ class MissionNotFound(InputError):
 
 class MissionUnavailable(OrangeError):
     """A stored mission could not be rebuilt (not the client's fault)."""
+
+
+def plan_first(library: ScenarioLibrary, source: ScenarioSource, n_vertices: int, seed: int,
+               sessions) -> dict:
+    """In a planning worker: a new mission's first plan (SPEC §4 GeoJSON)."""
+    session = sessions.new(library.context(source), n_vertices=n_vertices, seed=seed)
+    return session.plan.to_geojson()
+
+
+def plan_again(library: ScenarioLibrary, source: ScenarioSource, state: dict, sessions) -> dict:
+    """In a planning worker: the session of ``state`` replanned from where it is now."""
+    session = sessions.restore(library.context(source), state)
+    return session.replan().to_geojson()
 
 
 class SessionKind:
@@ -108,26 +127,33 @@ class MissionRegistry:
     store : the SQLite store
     library : where scenario names and maps are resolved
     sessions : how sessions are made and restored (default ``SessionKind``)
+    planners : the worker processes that plan, within a request's budget (default: the
+        budget of ``Limits()``)
     """
 
-    def __init__(self, store: Store, library: ScenarioLibrary, sessions=None):
+    def __init__(self, store: Store, library: ScenarioLibrary, sessions=None,
+                 planners: Planners | None = None):
         self.store = store
         self.library = library
         self.sessions = sessions or SessionKind
+        self.planners = planners or Planners(Limits().budget())
         self._live: dict[str, LiveMission] = {}
         self._loading: dict[str, threading.Lock] = {}
         self._guard = threading.Lock()
 
     # --- create / find -------------------------------------------------------------------
     def create(self, source: ScenarioSource, *, n_vertices: int, seed: int) -> LiveMission:
-        """Load the scenario, plan the first tour (seconds), store the mission."""
-        ctx = self.library.context(source)
-        session = self.sessions.new(ctx, n_vertices=n_vertices, seed=seed)
+        """Load the scenario, plan the first tour (seconds, in a planning worker), store the
+        mission."""
+        self.library.context(source)  # a scenario that does not load is refused at once
+        plan = self.planners.run(plan_first, self.library, source, n_vertices, seed,
+                                 self.sessions, what="planning the first tour")
         row = MissionRow(id=secrets.token_hex(6), created_s=time.time(),
                          scenario_name=source.name, scenario_toml=source.toml_text,
                          inline=source.inline,
                          options={"n_vertices": n_vertices, "seed": seed, **_options()},
-                         initial_plan=session.plan.to_geojson())
+                         initial_plan=plan)
+        session = self._restored(row, [])
         live = LiveMission(row, session)
         live.last_decision = decision_dict(session.decision())
         self.store.add_mission(row)
@@ -207,12 +233,12 @@ class MissionRegistry:
             events = [("map", {"obstacles": obstacles, "no_go": no_go})]
             if replan:
                 try:
-                    plan = live.session.replan()
+                    plan = self._replanned(live)
                 except OrangeError as exc:
                     self._commit(live, events, live.session.decision())
                     raise type(exc)(f"the map update is stored, but no new tour: {exc}") \
                         from None
-                events.append(("plan", plan.to_geojson()))
+                events.append(("plan", plan))
                 decision = live.session.decision()
             return self._commit(live, events, decision)
 
@@ -220,8 +246,8 @@ class MissionRegistry:
         """Plan a new tour from the robot's current state; the decision after it."""
         live = self.get(mission_id)
         with live.lock, self._untouched_unless_stored(live):
-            plan = live.session.replan()
-            return self._commit(live, [("plan", plan.to_geojson())], live.session.decision())
+            plan = self._replanned(live)
+            return self._commit(live, [("plan", plan)], live.session.decision())
 
     def decision(self, mission_id: str) -> dict:
         live = self.get(mission_id)
@@ -230,6 +256,29 @@ class MissionRegistry:
             return live.last_decision
 
     # --- internals -----------------------------------------------------------------------
+    def _replanned(self, live: LiveMission) -> dict:
+        """Replan in a planning worker and adopt the plan: the session is rebuilt from its
+        state with the new plan as its last event (as a restart would rebuild it); the
+        plan's GeoJSON is returned."""
+        state = live.session.state_dict()
+        plan = self.planners.run(plan_again, self.library, _source(live.row), state,
+                                 self.sessions, what="replanning")
+        live.session = self.sessions.restore(self.library.context(_source(live.row)),
+                                             {**state, "events": [*state["events"],
+                                                                  {"plan": plan}]})
+        return plan
+
+    def _restored(self, row: MissionRow, events: list) -> object:
+        """The session of a stored mission, replayed from its first plan and ``events``."""
+        ctx = self.library.context(_source(row))
+        opts = row.options
+        state = {"version": self.sessions.state_version(), "scenario": ctx.scenario.name,
+                 "n_vertices": opts["n_vertices"], "seed": opts["seed"],
+                 **{k: opts.get(k, v) for k, v in SESSION_DEFAULTS.items()},
+                 "plan": row.initial_plan,
+                 "events": [_state_event(e.kind, e.payload) for e in events]}
+        return self.sessions.restore(ctx, state)
+
     @contextmanager
     def _untouched_unless_stored(self, live: LiveMission):
         """The session refuses bad input (InputError, OrangeError) before it changes; after
@@ -263,18 +312,10 @@ class MissionRegistry:
         live.updated_s = time.time()
 
     def _rebuild(self, row: MissionRow) -> LiveMission:
-        source = ScenarioSource(row.scenario_name, row.scenario_toml, row.inline)
         t0 = time.perf_counter()
         try:
             events = self.store.events(row.id)
-            ctx = self.library.context(source)
-            opts = row.options
-            state = {"version": self.sessions.state_version(), "scenario": ctx.scenario.name,
-                     "n_vertices": opts["n_vertices"], "seed": opts["seed"],
-                     **{k: opts.get(k, v) for k, v in SESSION_DEFAULTS.items()},
-                     "plan": row.initial_plan,
-                     "events": [_state_event(e.kind, e.payload) for e in events]}
-            session = self.sessions.restore(ctx, state)
+            session = self._restored(row, events)
             live = LiveMission(row, session)
             for e in events:
                 if e.kind == "telemetry":
@@ -313,6 +354,10 @@ def settle_heap() -> None:
     gc.freeze()
     atexit.unregister(gc.unfreeze)  # registered once however often the heap is settled
     atexit.register(gc.unfreeze)
+
+
+def _source(row: MissionRow) -> ScenarioSource:
+    return ScenarioSource(row.scenario_name, row.scenario_toml, row.inline)
 
 
 def _state_event(kind: str, payload: dict) -> dict:

@@ -133,8 +133,8 @@ def load_map(path: str | Path) -> Map:
 
     boundary = _boundary(parts["boundary"], path)
     _check_extent(boundary, parts["boundary"][0][0], path)
-    obstacles = tuple(_polygonal(i, g, "obstacle", path) for i, g, _ in parts["obstacle"])
-    no_go = tuple(_polygonal(i, g, "no_go", path) for i, g, _ in parts["no_go"])
+    obstacles, no_go = (tuple(keep_out_polygon(g, f"{path}: feature {i} ({kind})", boundary)
+                              for i, g, _ in parts[kind]) for kind in ("obstacle", "no_go"))
     surfaces = tuple(_surface(i, g, p, path) for i, g, p in parts["surface"])
     home = _home(parts["home"], boundary, obstacles + no_go, path)
     default_surface = _default_surface(data.get("default_surface"), path)
@@ -211,23 +211,96 @@ def _feature(feature, i: int, path: Path):
             f"{path}: feature {i} has unknown kind {kind!r} (allowed: {', '.join(sorted(KINDS))})"
             + close_match_hint(str(kind), KINDS)
         )
-    _check_rings_closed(feature.get("geometry"), f"feature {i} ({kind})", path)
+    return kind, map_geometry(feature.get("geometry"), f"{path}: feature {i} ({kind})"), props
+
+
+def keep_out_polygon(geometry, what: str, boundary: Polygon | None = None):
+    """An obstacle or no-go zone, checked by the rules of a map file.
+
+    The one check for keep-out zones: a map file's obstacles and no-go zones and those a
+    running mission receives as a map update (``MissionSession.update_map``, the service's
+    map endpoint) pass the same rules.
+
+    Parameters
+    ----------
+    geometry : a GeoJSON geometry (dict), a shapely geometry, or coordinates: one ring
+        ``[[x, y], ...]`` or a Polygon's rings ``[[[x, y], ...], ...]`` [m]
+    what : how an error names it, e.g. ``"map update: obstacles[0]"``
+    boundary : the map's boundary, which the zone must overlap; None: not checked
+
+    Returns
+    -------
+    The Polygon or MultiPolygon, as given (nothing is repaired).
+
+    Raises
+    ------
+    MapError
+        One line naming ``what``: malformed, a ring not closed, a coordinate not finite or
+        beyond ``MAX_COORD_M``, not a Polygon/MultiPolygon, empty, invalid (self-
+        intersecting), or entirely outside the boundary.
+    """
+    geom = _polygonal(map_geometry(geometry, what), what)
+    if boundary is not None and not boundary.intersects(geom):
+        raise MapError(f"{what} lies entirely outside the map's boundary")
+    return geom
+
+
+def map_geometry(geometry, what: str):
+    """A shapely geometry from GeoJSON, shapely or coordinate rings, in a metric frame.
+
+    Raises
+    ------
+    MapError
+        Malformed geometry, a GeoJSON ring that does not end where it starts (shapely would
+        close it silently), or a coordinate that is not finite or lies beyond
+        ``MAX_COORD_M`` (one line naming ``what``).
+    """
+    if hasattr(geometry, "geom_type"):
+        _check_coordinates(shapely.get_coordinates(geometry), what)
+        return geometry
+    geometry = _as_geojson(geometry, what)
+    _check_coordinates(np.fromiter(_numbers(geometry.get("coordinates")), float), what)
+    _check_rings_closed(geometry, what)
     try:
-        geom = shape(feature.get("geometry"))
+        return shape(geometry)
     except Exception as exc:  # noqa: BLE001 - shapely raises several types here
-        raise MapError(f"{path}: feature {i} ({kind}) has malformed geometry ({exc})") from None
-    if not geom.is_empty and not _finite_and_bounded(geom):
-        raise MapError(f"{path}: feature {i} ({kind}) has a coordinate that is not finite or "
-                       f"lies beyond {MAX_COORD_M:g} m from the origin")
-    return kind, geom, props
+        raise MapError(f"{what} has malformed geometry ({exc})") from None
 
 
-def _finite_and_bounded(geom) -> bool:
-    xy = shapely.get_coordinates(geom)
-    return bool(np.all(np.isfinite(xy)) and np.all(np.abs(xy) <= MAX_COORD_M))
+def _check_coordinates(numbers: np.ndarray, what: str) -> None:
+    if not (np.all(np.isfinite(numbers)) and np.all(np.abs(numbers) <= MAX_COORD_M)):
+        raise MapError(f"{what} has a coordinate that is not finite or lies beyond "
+                       f"{MAX_COORD_M:g} m from the origin")
 
 
-def _check_rings_closed(geometry, what: str, path: Path) -> None:
+def _numbers(coordinates):
+    """Every number in nested GeoJSON coordinates (anything else is left to shapely)."""
+    if isinstance(coordinates, (int, float)) and not isinstance(coordinates, bool):
+        yield float(coordinates)
+    elif isinstance(coordinates, (list, tuple)):
+        for item in coordinates:
+            yield from _numbers(item)
+
+
+def _as_geojson(geometry, what: str):
+    """A GeoJSON geometry as given; bare coordinates (one ring, or a Polygon's rings) as a
+    GeoJSON Polygon."""
+    if isinstance(geometry, dict):
+        return geometry
+    if not isinstance(geometry, (list, tuple, np.ndarray)):
+        raise MapError(f"{what} is not a GeoJSON geometry nor polygon coordinates, got "
+                       f"{type(geometry).__name__}")
+    try:
+        rings = np.asarray(geometry, float)
+    except (TypeError, ValueError) as exc:
+        raise MapError(f"{what} is not a polygon ({exc})") from None
+    if rings.ndim not in (2, 3) or rings.shape[-1] != 2:
+        raise MapError(f"{what} is not a polygon: coordinates must be a ring [[x, y], ...] or "
+                       f"a list of rings, got an array of shape {rings.shape}")
+    return {"type": "Polygon", "coordinates": (rings[None] if rings.ndim == 2 else rings).tolist()}
+
+
+def _check_rings_closed(geometry, what: str) -> None:
     """GeoJSON rings must end where they start; shapely would close them silently."""
     if not isinstance(geometry, dict):
         return
@@ -236,17 +309,18 @@ def _check_rings_closed(geometry, what: str, path: Path) -> None:
     for polygon in polygons or []:
         for j, ring in enumerate(polygon if isinstance(polygon, list) else []):
             if isinstance(ring, list) and len(ring) >= 2 and ring[0] != ring[-1]:
-                raise MapError(f"{path}: {what}: ring {j} is not closed (its first position "
+                raise MapError(f"{what}: ring {j} is not closed (its first position "
                                f"{ring[0]} differs from its last {ring[-1]}); nothing is repaired")
 
 
-def _polygonal(i: int, geom, kind: str, path: Path):
+def _polygonal(geom, what: str):
+    """A non-empty, valid Polygon or MultiPolygon (as given: nothing is repaired)."""
     if not isinstance(geom, (Polygon, MultiPolygon)):
-        raise MapError(f"{path}: feature {i} ({kind}) must be a Polygon or MultiPolygon")
+        raise MapError(f"{what} must be a Polygon or MultiPolygon, got a {geom.geom_type}")
     if geom.is_empty:
-        raise MapError(f"{path}: feature {i} ({kind}) is empty")
+        raise MapError(f"{what} is empty")
     if not geom.is_valid:
-        raise MapError(f"{path}: feature {i} ({kind}) is invalid: {explain_validity(geom)}")
+        raise MapError(f"{what} is invalid: {explain_validity(geom)}")
     return geom
 
 
@@ -267,7 +341,7 @@ def _boundary(found, path: Path) -> Polygon:
 
 
 def _surface(i: int, geom, props, path: Path) -> Surface:
-    geom = _polygonal(i, geom, "surface", path)
+    geom = _polygonal(geom, f"{path}: feature {i} (surface)")
     name = props.get("name")
     if not isinstance(name, str) or not name:
         raise MapError(f"{path}: feature {i} (surface) needs a 'name'")

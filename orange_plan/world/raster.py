@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import MapError
+from orange_plan.limits import MAX_ELEVATION_CELLS
 from orange_plan.paths import file_problem
 
 
@@ -59,7 +60,8 @@ def load_elevation(path: Path) -> ElevationRaster:
     Raises
     ------
     MapError
-        If the file is missing, unreadable, rotated, or holds no-data cells.
+        If the file is missing, unreadable, rotated, larger than
+        ``limits.MAX_ELEVATION_CELLS`` cells, or holds no-data cells.
     """
     problem = file_problem(path, path.name, "elevation raster")
     if problem:
@@ -68,6 +70,7 @@ def load_elevation(path: Path) -> ElevationRaster:
 
     try:
         with rasterio.open(path) as src:
+            _check_size(src.height, src.width, path)  # before reading: the header is enough
             band = src.read(1, masked=True).astype(float)
             t = src.transform
     except rasterio.errors.RasterioError as exc:
@@ -88,3 +91,10 @@ def load_elevation(path: Path) -> ElevationRaster:
     if not np.all(np.isfinite(z)):
         raise MapError(f"elevation raster '{path.name}' holds non-finite values")
     return ElevationRaster(np.ascontiguousarray(z), float(x0), float(y0), float(cell))
+
+
+def _check_size(rows: int, cols: int, path: Path) -> None:
+    """Refuse a raster with more than ``MAX_ELEVATION_CELLS`` cells before reading it."""
+    if rows * cols > MAX_ELEVATION_CELLS:
+        raise MapError(f"elevation raster '{path.name}' has {rows} x {cols} cells, more than "
+                       f"the limit of {MAX_ELEVATION_CELLS:,}: resample it to coarser cells")

@@ -15,9 +15,10 @@ import numpy as np
 import shapely
 
 from orange_plan.errors import InputError
+from orange_plan.limits import MAX_RASTER_CELLS
 
-MAX_CELLS = 2_000_000
-"""Largest grid built by default (about 50 MB over the three layers)."""
+MAX_CELLS = MAX_RASTER_CELLS
+"""Largest grid built by default (``limits.MAX_RASTER_CELLS``)."""
 
 
 @dataclass(frozen=True)

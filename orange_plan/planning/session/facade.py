@@ -14,7 +14,6 @@ from dataclasses import replace
 import numpy as np
 import shapely
 from scipy.spatial import cKDTree
-from shapely.geometry import MultiPolygon, Polygon, shape
 
 from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS
@@ -31,6 +30,7 @@ from orange_plan.planning.session.events import (
     replay_events,
 )
 from orange_plan.planning.session.intake import Intake, validated_batch
+from orange_plan.world.geomap import keep_out_polygon
 
 
 class MissionSession:
@@ -398,13 +398,18 @@ class MissionSession:
         Raises
         ------
         InputError
-            A polygon that is malformed, invalid or empty, or that covers the robot's
-            position or home or comes closer to them than the robot's keep-away
+            A polygon that breaks the rules of a map file (``world.geomap.keep_out_polygon``:
+            malformed, a ring not closed, a coordinate not finite or too far, invalid, empty,
+            or outside the boundary), or that covers the robot's position or home or comes
+            closer to them than the robot's keep-away
             (``robot.radius_m + mission.clearance_m``) (one line, naming which polygon or
             the distance).
         """
-        new_obstacles = [_polygon(p, f"obstacles[{i}]") for i, p in enumerate(obstacles)]
-        new_no_go = [_polygon(p, f"no_go[{i}]") for i, p in enumerate(no_go)]
+        boundary = self.ctx.world.true_map.boundary  # a map file's rules (world.geomap)
+        new_obstacles = [keep_out_polygon(p, f"map update: obstacles[{i}]", boundary)
+                         for i, p in enumerate(obstacles)]
+        new_no_go = [keep_out_polygon(p, f"map update: no_go[{i}]", boundary)
+                     for i, p in enumerate(no_go)]
         where = {"the robot's position": self.position_xy_m, "home": self.ctx.world.home_xy_m}
         for name, poly in [*(("obstacles", p) for p in new_obstacles),
                            *(("no_go", p) for p in new_no_go)]:
@@ -461,26 +466,6 @@ class MissionSession:
 
 
 # --- helpers ------------------------------------------------------------------------------
-
-
-def _polygon(value, what: str):
-    """A valid, non-empty Polygon/MultiPolygon from shapely, a GeoJSON geometry or rings."""
-    geom = value
-    try:
-        if isinstance(value, dict):
-            geom = shape(value)
-        elif not hasattr(value, "geom_type"):
-            rings = np.asarray(value, float)
-            geom = Polygon(rings) if rings.ndim == 2 else Polygon(rings[0], list(rings[1:]))
-    except (TypeError, ValueError, AttributeError, IndexError) as exc:
-        raise InputError(f"map update: {what} is not a polygon ({exc})") from None
-    if not isinstance(geom, (Polygon, MultiPolygon)) or geom.is_empty:
-        raise InputError(f"map update: {what} must be a non-empty Polygon or MultiPolygon")
-    if not geom.is_valid:
-        from shapely.validation import explain_validity
-
-        raise InputError(f"map update: {what} is invalid: {explain_validity(geom)}")
-    return geom
 
 
 def _distance_to_segments(p, a, b) -> np.ndarray:
