@@ -281,7 +281,9 @@ def fly_lawnmower(kit: _MapKit, truth, seed: int, rate: float, rule=None) -> dic
 
 
 def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
-    """(a): the first tour flown in closed loop with ``MissionSession`` (module docstring).
+    """(a): the first tour flown in closed loop with ``MissionSession`` (module docstring):
+    the session's route (``MissionSession.route_xy_m``: a plan that follows a sweep goes on
+    past its guaranteed extent along its continuation until the live check turns it home).
 
     Each route (the first tour, a replanned tour, the way home) is one simulated segment; the
     recording is fed in ``chunk_s`` batches (mission time carried over) until the decision
@@ -292,7 +294,7 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
     ctx, rate = kit.ctx, spec.sample_rate_Hz
     session = MissionSession(ctx, kit.plan, n_vertices=spec.n_vertices, seed=0,
                              planner_kwargs={"bitstar_legs": 0})
-    xy, speed = kit.plan.xy_m, kit.plan.speed_mps
+    xy, speed = session.route_xy_m, session.route_speed_mps
     flown = _Flown(1.0 / rate, [], [], math.nan)
     chunk = max(1, round(spec.chunk_s * rate))
     t_next, last_replan, segment, returning = 0.0, -math.inf, 0, False
@@ -323,7 +325,7 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
                     and a + len(batch) < len(frame)):
                 cut, last_replan = a + len(batch), now
                 try:
-                    plan = session.replan()
+                    session.replan()
                     action = "replan"
                     flown.replans += 1
                 except InputError:  # nothing new fits: go home
@@ -336,7 +338,7 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
         t_next = float(t[cut - 1]) + 1.0 / rate
         here = frame[["x_m", "y_m"]].to_numpy(float)[cut - 1]
         if action == "replan":
-            xy, speed = plan.xy_m, plan.speed_mps
+            xy, speed = session.route_xy_m, session.route_speed_mps
             if np.hypot(*(np.asarray(xy[0]) - here)) > 1e-6:  # the tour starts where we are
                 xy = np.vstack([here, xy])
                 speed = np.r_[speed[0], speed]

@@ -452,19 +452,13 @@ def driven_home(reach):
 
 
 def closed_loop_route(plan, homing: _HomingKit):
-    """(route, ways home, costs) of a plan flown in closed loop: the tour up to its turn
-    point, then its continuation (``Plan.continuation_xy_m``), at the cruise speed its sweep
-    was scored at (else the plan's median speed); a plan without a continuation is flown
-    whole (the rule may still turn it home early)."""
+    """(route, ways home, costs) of a plan flown in closed loop (``Plan.closed_loop_route``:
+    the tour to its turn point, then its continuation), the ways home at the cruise speed its
+    sweep was scored at (else the plan's median speed); a plan without a continuation is
+    flown whole (the rule may still turn it home early)."""
     import copy
 
-    xy = np.asarray(plan.xy_m, float)
-    route = xy
-    rest = plan.continuation_xy_m
-    if rest is not None and len(rest) >= 2:
-        turn = np.flatnonzero(np.hypot(*(xy - np.asarray(rest[0])).T) < 1e-6)
-        if turn.size:
-            route = np.vstack([xy[: int(turn[0]) + 1], np.asarray(rest, float)[1:]])
+    route = plan.closed_loop_route()[0]
     home = copy.copy(homing.home)
     home.speed_mps = float((plan.summary or {}).get("closed_loop_speed_mps",
                                                     np.median(plan.speed_mps)))

@@ -84,6 +84,24 @@ class Plan:
     def n_vertices(self) -> int:
         return len(self.xy_m)
 
+    def closed_loop_route(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """The route a closed loop flies: the tour up to its turn point, then the
+        continuation (the tour itself without one) [m]; the commanded speed at each vertex
+        (the tour's, then the cruise speed the sweep was scored at) [m/s]; and the index of
+        the turn point (the last vertex of the guaranteed extent)."""
+        xy = np.asarray(self.xy_m, float)
+        speed = np.asarray(self.speed_mps, float)
+        rest = self.continuation_xy_m
+        if rest is None or len(rest) < 2:
+            return xy, speed, len(xy) - 1
+        turn = np.flatnonzero(np.hypot(*(xy - np.asarray(rest[0], float)).T) < 1e-6)
+        if turn.size == 0:
+            return xy, speed, len(xy) - 1
+        k = int(turn[0])
+        cruise = float(self.summary.get("closed_loop_speed_mps", np.median(speed[: k + 1])))
+        route = np.vstack([xy[: k + 1], np.asarray(rest, float)[1:]])
+        return route, np.r_[speed[: k + 1], np.full(len(rest) - 1, cruise)], k
+
     def expected_continuation_xy_m(self) -> np.ndarray | None:
         """The part of the continuation a closed loop is expected to fly before turning home
         (to ``summary["closed_loop_turn_m"]`` along the route), None without one [m]."""

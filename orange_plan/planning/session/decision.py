@@ -100,6 +100,8 @@ class HomingState:
         estimator's window [J/m], or None while it cannot say
     tour_margin_J : smallest homing margin over the rest of the tour, online model [J]
     replan_margin_J : the margin the rest of the tour must keep [J]
+    lookahead_J : energy the robot draws before the next decision can reach it (the last
+        batch's) [J]: the return is decided while the margin still covers it
     """
 
     position_xy_m: tuple[float, float]
@@ -115,6 +117,7 @@ class HomingState:
     departure: tuple[float, float, float] | None
     tour_margin_J: float
     replan_margin_J: float
+    lookahead_J: float = 0.0
 
 
 def decide(state: HomingState) -> Decision:
@@ -124,6 +127,7 @@ def decide(state: HomingState) -> Decision:
                   covered_m2=state.covered_m2, energy_available_J=avail)
     if home is None:
         return _flagged(state, common)
+    ahead = state.lookahead_J
     margin = avail - used - home.energy_J - home.reserve_J
     res_rule = state.reserve
     prob = float(res_rule.return_probability(avail - used - home.energy_J, home.sd_J))
@@ -136,11 +140,12 @@ def decide(state: HomingState) -> Decision:
     if not math.isfinite(home.energy_J):
         return Decision("return_home", "no way home was found from the current position; "
                         "head home by the last known way", **figures)
-    if margin < 0:
-        return Decision("return_home", f"the homing margin is {margin:,.0f} J: "
-                        f"{used:,.0f} J used + {home.energy_J:,.0f} J to home + "
-                        f"{home.reserve_J:,.0f} J reserve exceed {avail:,.0f} J available",
-                        **figures)
+    if margin - ahead < 0:  # the next decision comes a batch later: turn before it is late
+        return Decision("return_home", f"the homing margin is {margin:,.0f} J, less than the "
+                        f"{ahead:,.0f} J drawn until the next decision: "
+                        f"{used:,.0f} J used + {ahead:,.0f} J until the next decision + "
+                        f"{home.energy_J:,.0f} J to home + {home.reserve_J:,.0f} J reserve "
+                        f"exceed {avail:,.0f} J available", **figures)
     if res_rule.falls_short(prob):
         return Decision("return_home", f"the probability of getting home is {prob:.4f}, "
                         f"below the reserve's confidence {res_rule.value:g}", **figures)

@@ -107,8 +107,12 @@ def plan_from_geojson(data: dict) -> Plan:
                  if f.get("properties", {}).get("kind") == "waypoint"]
     covered = next((shape(f["geometry"]) for f in features
                     if f.get("properties", {}).get("kind") == "covered"), None)
+    rest = next((f["geometry"]["coordinates"] for f in features
+                 if f.get("properties", {}).get("kind") == "continuation"), None)
+    continuation = None if rest is None else np.asarray(rest, float).reshape(-1, 2)
     return Plan(xy, waypoints_xy_m=np.asarray(waypoints, float).reshape(-1, 2), covered=covered,
-                summary=dict(data.get("summary", {})), **arrays)
+                summary=dict(data.get("summary", {})), continuation_xy_m=continuation,
+                **arrays)
 
 
 def _records(frame: pd.DataFrame) -> dict:

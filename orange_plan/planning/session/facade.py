@@ -50,6 +50,13 @@ class MissionSession:
     Attributes
     ----------
     plan : the current plan
+    route_xy_m, route_speed_mps : what the robot flies: the plan's tour, or with a
+        continuation (a plan that follows a sweep) the tour to its turn point and then the
+        continuation (``Plan.closed_loop_route``) [m], [m/s]
+    closed_loop : the route goes past the plan's guaranteed extent: the robot turns home on
+        the live check (measured energy + the way home + the reserve for the return alone),
+        and the rest of the tour's open-loop checks (its margins re-evaluated, the energy per
+        metre departing from the plan's) no longer call for replans
     ctx : the current context (its world gains the map updates; each update raises its
         map's ``version``)
     """
@@ -173,6 +180,11 @@ class MissionSession:
         """Fly ``plan`` from now on; its figures were made with the current online model
         and world."""
         self.plan = plan
+        # with a continuation the robot flies on past the guaranteed extent, turning home
+        # on the live check alone (the rest of the tour is not what it flies)
+        self.route_xy_m, self.route_speed_mps, self._turn_index = plan.closed_loop_route()
+        self.closed_loop = plan.continuation_xy_m is not None and \
+            self._turn_index < len(self.route_xy_m) - 1
         self._plan_model = self.online_model
         self._plan_conditions = self.conditions_now
         self._plan_map_version = self.map_version
@@ -215,7 +227,7 @@ class MissionSession:
     def _tour_progress(self) -> int:
         """Index of the tour segment the robot is on: the first one, from the last progress
         on, within half a footprint of the nearest (a tour may pass a place twice)."""
-        xy = self.plan.xy_m
+        xy = self.route_xy_m
         if len(xy) < 2:
             return 0
         a, b = xy[self._progress:-1], xy[self._progress + 1:]
@@ -234,16 +246,49 @@ class MissionSession:
         used, avail = self.energy_used_J, self.energy_available_J
         where = self._position_where()
         free = where == "free"
+        home = self._return_home() if free else None
         return HomingState(
             position_xy_m=self.position_xy_m, time_s=self.time_s, energy_used_J=used,
             energy_available_J=avail, covered_m2=float(self.covered.area),
             position_where=where, reserve=reserve_from(self.ctx.scenario),
-            home=self._return_home() if free else None,
+            home=home,
             energy_per_m_J=self._energy_per_m_J(),
             map_changed=self.map_version != self._plan_map_version,
-            departure=self._departure() if free else None,
-            tour_margin_J=self._remaining_tour_margin_J(used, avail) if free else math.nan,
-            replan_margin_J=self.replan_margin_J)
+            # in closed loop the live check decides when to turn: the open-loop checks of
+            # the rest of the tour would call for a replan wherever it spends the reserve
+            departure=self._departure() if free and not self.closed_loop else None,
+            tour_margin_J=(self._remaining_tour_margin_J(used, avail)
+                           if free and not self.closed_loop else math.nan),
+            replan_margin_J=self.replan_margin_J,
+            lookahead_J=self._lookahead_J(home) if free and self.closed_loop else 0.0)
+
+    def _lookahead_J(self, home: Home) -> float:
+        """Closed loop: what the next decision comes too late for [J]. The robot flies on
+        for about one more batch before it can hear the next decision: the online model's
+        energy of that stretch of the route ahead (as far as one batch's time goes at the
+        commanded speed), plus how much dearer the way home is from its end; at the route's
+        end, what the last batch drew. A hill
+        just ahead is thus paid for before it is climbed."""
+        from orange_plan.planning.paths import cut_path
+
+        last = self._intake.last_batch_J
+        k = self._progress
+        rest = np.vstack([self.position_xy_m, self.route_xy_m[k + 1:]])
+        keep = distinct_vertices(rest)
+        rest, speeds = rest[keep], self.route_speed_mps[k:][keep][:-1]
+        if len(rest) < 2 or not math.isfinite(home.energy_J):
+            return last
+        # as far as the commanded speed goes in one batch: a batch spent at a stop does not
+        # mean the next one will be
+        reach_m = self._intake.last_batch_s * float(np.max(speeds[:1], initial=0.0))
+        ahead = cut_path(rest, max(reach_m, self.ctx.scenario.mission.sensor_radius_m))
+        if len(ahead) < 2:
+            return last
+        stretch = path_energy(self.online_model, self.ctx.world, ahead, speeds[:len(ahead) - 1],
+                              self.conditions_now).total_J
+        then = self._return_home(ahead[-1])
+        dearer = (then.energy_J + then.reserve_J) - (home.energy_J + home.reserve_J)
+        return float(stretch) + max(float(dearer), 0.0)
 
     def _position_where(self) -> str:
         """"free" where the map allows the robot to be (``World.is_free``), else
@@ -287,17 +332,18 @@ class MissionSession:
         return simplified_range(self.ctx.scenario, self.online_model,
                                 self.ctx.world.default_crr).energy_per_m_J
 
-    def _return_home(self) -> Home:
-        """Best roadmap return from the position (free: ``homing_state`` asks only then),
-        driven from rest to rest and evaluated with the online model (energy and gradient
-        from one drive, as the tour's returns)."""
+    def _return_home(self, xy=None) -> Home:
+        """Best roadmap return from the position (or ``xy``; free: ``homing_state`` asks only
+        then), driven from rest to rest and evaluated with the online model (energy and
+        gradient from one drive, as the tour's returns)."""
         from orange_plan.planning.tour import drive
 
         reach, tree = self._reach()
         model = self.online_model
         exact = replace(reach.exact, model=model, world=self.ctx.world,
                         conditions=self.conditions_now)
-        back = way_home(replace(reach, exact=exact), self.position_xy_m, tree)
+        start = self.position_xy_m if xy is None else tuple(float(v) for v in xy)
+        back = way_home(replace(reach, exact=exact), start, tree)
         if back is None:
             return Home(math.inf, 0.0, 0.0)
         if len(back) < 2:  # at home

@@ -145,6 +145,8 @@ class Intake:
     time_s : time of the last sample (the plan's start before any) [s]
     t_last : time of the last sample, None before the first [s]
     energy_used_J : battery energy used so far, never below 0 [J]
+    last_batch_J, last_batch_s : battery energy the last batch drew [J] and its duration [s]
+        (the robot flies about as long again before the next decision reaches it)
     """
 
     def __init__(self, model, usable_J: float, *, memory_s: float, window_s: float):
@@ -155,6 +157,7 @@ class Intake:
         self.history = pd.DataFrame()
         self.covered = shapely.GeometryCollection()
         self.t_last: float | None = None
+        self.last_batch_J = self.last_batch_s = 0.0
         self.start_at(np.zeros((1, 2)), 0.0, 0.0)
 
     def start_at(self, xy_m, energy_used_J: float, time_s: float) -> None:
@@ -189,6 +192,9 @@ class Intake:
         used = energy_used_after(self.energy_used_J, power, dt)
         if "soc" in frame:
             self.soc.add(used, pd.to_numeric(frame["soc"], errors="coerce").to_numpy(float))
+        # what the robot draws until the next decision can reach it: about one batch more
+        self.last_batch_J = max(float(power @ dt), 0.0)
+        self.last_batch_s = float(np.sum(dt))
         self.energy_used_J = float(used[-1])
         trusted = bool(np.all(ctx.world.is_free(xy[:, 0], xy[:, 1])))
         if trusted:
