@@ -115,6 +115,23 @@ def sweep_lanes(world, grid, sensor_radius_m: float, angle_deg: float):
     return lanes[::-1] if float(angle_deg) % 360.0 >= 180.0 else lanes
 
 
+class SweepLanes:
+    """``sweep_lanes`` of one world, coverage grid and sensor radius, each angle's lanes
+    computed once: the lawnmower's angle search and the planner's sweeps ask for the same
+    angles, and a and a + 180 deg share their lanes (swept in reverse order)."""
+
+    def __init__(self, world, grid, sensor_radius_m: float):
+        self.world, self.grid, self.r = world, grid, float(sensor_radius_m)
+        self._lanes: dict[float, list] = {}
+
+    def __call__(self, angle_deg: float):
+        base = round(float(angle_deg) % 180.0, 9)
+        if base not in self._lanes:
+            self._lanes[base] = sweep_lanes(self.world, self.grid, self.r, base)
+        lanes = self._lanes[base]
+        return lanes[::-1] if float(angle_deg) % 360.0 >= 180.0 else lanes
+
+
 def boustrophedon(lanes) -> list[np.ndarray]:
     """Pieces in driving order: even lanes forwards, odd lanes backwards (pieces reversed)."""
     order = []
@@ -325,7 +342,7 @@ def _covered_before_return(ctx, cost, xy, free, budget_J: float,
 
 def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
                                 refine_deg: float = 5.0, detours: Detours | None = None,
-                                rescore: int = 3) -> float:
+                                rescore: int = 3, lanes: SweepLanes | None = None) -> float:
     """The sweep angle that senses most before the robot must turn home.
 
     Scored on the planning model with straight joins (``_covered_before_return``) and a
@@ -351,9 +368,10 @@ def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
 
     free = ctx.world.true_map.free_space  # sensed area: the sensor sees up to the walls
     shapely.prepare(free)
+    lanes = lanes or SweepLanes(ctx.world, grid, r)
 
     def score(angle, joined: bool = False):
-        pieces = boustrophedon(sweep_lanes(ctx.world, grid, r, angle))
+        pieces = boustrophedon(lanes(angle))
         if not pieces:
             return (0.0, 0.0)
         xy = (join_pieces(home, pieces, detours) if joined else straight_route(home, pieces))[0]
@@ -375,7 +393,8 @@ def best_energy_sweep_angle_deg(ctx, cost, grid, angles_deg=DEFAULT_ANGLES_DEG,
 
 
 def plan_lawnmower(ctx, reach=None, angle_deg: float | None = None, n_vertices: int = 2000,
-                   seed: int = 0, angles_deg=DEFAULT_ANGLES_DEG) -> Lawnmower:
+                   seed: int = 0, angles_deg=DEFAULT_ANGLES_DEG,
+                   lanes: SweepLanes | None = None) -> Lawnmower:
     """Lawnmower path over the scenario's free workspace at its best (or a given) angle.
 
     Parameters
@@ -385,6 +404,8 @@ def plan_lawnmower(ctx, reach=None, angle_deg: float | None = None, n_vertices: 
         (built here with ``n_vertices`` and ``seed`` when None)
     angle_deg : lane direction [deg]; None: ``best_energy_sweep_angle_deg``
     angles_deg : candidate angles for the search [deg]
+    lanes : ``SweepLanes`` to read the lanes from (shared with other sweeps of the same
+        world, grid and radius); default: made here
 
     Returns
     -------
@@ -402,13 +423,14 @@ def plan_lawnmower(ctx, reach=None, angle_deg: float | None = None, n_vertices: 
     if reach is None:
         reach = prepare_reach(ctx, n_vertices=n_vertices, seed=seed)
     r = ctx.scenario.mission.sensor_radius_m
-    grid = coverage_grid(ctx.world, r)
+    grid = coverage_grid(ctx.world, r) if lanes is None else lanes.grid
+    lanes = lanes or SweepLanes(ctx.world, grid, r)
     rm = reach.roadmap
     detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
     if angle_deg is None:
         angle_deg = best_energy_sweep_angle_deg(ctx, reach.fast, grid, angles_deg,
-                                                detours=detours)
-    pieces = boustrophedon(sweep_lanes(ctx.world, grid, r, angle_deg))
+                                                detours=detours, lanes=lanes)
+    pieces = boustrophedon(lanes(angle_deg))
     if not pieces:
         raise PlanningError(f"no lane fits in the free workspace (sensor radius {r:g} m)")
     xy, _, driven, n_detours = join_pieces(ctx.world.home_xy_m, pieces, detours)

@@ -36,11 +36,11 @@ import numpy as np
 from orange_plan.errors import PlanningError
 from orange_plan.planning.lawnmower import (
     DEFAULT_ANGLES_DEG,
+    SweepLanes,
     cumulative_energy_time,
     densify,
     join_pieces,
     straight_route,
-    sweep_lanes,
 )
 from orange_plan.planning.paths import cut_path
 from orange_plan.planning.reserve import reserve_from
@@ -171,8 +171,10 @@ def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
                       float(used[k_closed]), length)
 
 
-RETURN_LOOKUPS = 2000
-"""Points of a scored route whose way home is looked up; the others are interpolated."""
+RETURN_LOOKUPS = 400
+"""Points of a scored route whose way home is looked up; the others are interpolated (the
+way home changes smoothly along a route; the lookups' collision checks are most of a
+score's time)."""
 
 
 def _returns_along(home, xy, model):
@@ -210,7 +212,8 @@ def score_step_m(ctx) -> float:
 
 def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: float | None = None,
                time_left_s: float = math.inf, max_length_m: float = math.inf,
-               angles_deg=DEFAULT_ANGLES_DEG, rescore: int = RESCORE) -> Sweep | None:
+               angles_deg=DEFAULT_ANGLES_DEG, rescore: int = RESCORE,
+               lanes: SweepLanes | None = None) -> Sweep | None:
     """The complete sweep that senses most before the closed-loop rule turns it home.
 
     ``baseline_xy`` (the lawnmower's route, joined) is scored on the same terms and wins
@@ -223,6 +226,7 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
     if e_left_J is None:
         e_left_J = reach.energy_available_J - reach.energy_used_J
     step = score_step_m(ctx)
+    lanes = lanes or SweepLanes(ctx.world, grid, r)
 
     def score(xy) -> RouteScore:
         return score_route(ctx, cost, home, grid, xy, e_left_J, time_left_s, step,
@@ -234,9 +238,9 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
     angles = sorted({float(a) % 180.0 for a in angles_deg})
     straight = []
     for angle in angles:
-        lanes = sweep_lanes(ctx.world, grid, r, angle)
-        for name, order in lane_orders(lanes, home_xy).items():
-            pieces = ordered_pieces(lanes, order, home_xy)
+        at = lanes(angle)
+        for name, order in lane_orders(at, home_xy).items():
+            pieces = ordered_pieces(at, order, home_xy)
             straight.append((rank(score(straight_route(home_xy, pieces)[0])), angle, name,
                              pieces))
     tried = len(straight)

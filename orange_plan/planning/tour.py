@@ -189,7 +189,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     area already sensed (a replan), or when no sweep keeps the way home.
     """
     from orange_plan.planning.homepaths import HomePaths
-    from orange_plan.planning.lawnmower import Detours, plan_lawnmower
+    from orange_plan.planning.lawnmower import Detours, SweepLanes, plan_lawnmower
     from orange_plan.planning.sweeps import best_sweep
 
     reach = setup.reach
@@ -202,12 +202,13 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     home = HomePaths(reach).calibrate(functools.partial(driven_energy_J, reach.exact))
     rm = reach.roadmap
     detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
+    lanes = SweepLanes(ctx.world, setup.grid, ctx.scenario.mission.sensor_radius_m)
     baseline_xy = None
     # no lawnmower joins up on some roadmaps: the other sweeps still may
     with contextlib.suppress(PlanningError):
-        baseline_xy = plan_lawnmower(ctx, reach).xy_m if baseline else None
+        baseline_xy = plan_lawnmower(ctx, reach, lanes=lanes).xy_m if baseline else None
     sweep = best_sweep(ctx, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
-                       1.05 * drivable_m(ctx, reach, time_left))
+                       1.05 * drivable_m(ctx, reach, time_left), lanes=lanes)
     if sweep is None:
         return None
     checked = _guaranteed_prefix(ctx, setup, start, sweep.xy_m, sweep.score.open_s_m,
