@@ -176,3 +176,17 @@ def test_an_elevation_raster_too_large_is_refused_before_it_is_read(tmp_path):
         load_map(tmp_path / "yard.geojson")
     code, _, err = run_cli("range", scenario)
     assert code == 2 and f"{MAX_ELEVATION_CELLS:,}" in one_line(err)
+
+
+def test_a_ragged_ring_is_named_in_the_products_words():
+    """A ring whose vertices are not all [x, y] is refused without numpy's shape text."""
+    import shapely
+
+    from orange_plan.errors import InputError
+    from orange_plan.world.geomap import keep_out_polygon
+
+    with pytest.raises(InputError) as err:
+        keep_out_polygon([[0, 0], [1, 1, 2], [0, 1]], "map update: obstacles[0]",
+                         shapely.box(0, 0, 10, 10))
+    text = str(err.value)
+    assert "every vertex two numbers" in text and "inhomogeneous" not in text

@@ -292,8 +292,9 @@ def _as_geojson(geometry, what: str):
                        f"{type(geometry).__name__}")
     try:
         rings = np.asarray(geometry, float)
-    except (TypeError, ValueError) as exc:
-        raise MapError(f"{what} is not a polygon ({exc})") from None
+    except (TypeError, ValueError):  # numpy's text (ragged shapes) says nothing to a user
+        raise MapError(f"{what} is not a polygon: give a ring [[x, y], ...] or a list of "
+                       "rings, every vertex two numbers") from None
     if rings.ndim not in (2, 3) or rings.shape[-1] != 2:
         raise MapError(f"{what} is not a polygon: coordinates must be a ring [[x, y], ...] or "
                        f"a list of rings, got an array of shape {rings.shape}")
