@@ -124,3 +124,25 @@ def test_a_gauge_reading_high_never_adds_energy(aged):
     session, d = _feed(ctx, plan, kw, high, ["t_s", "power_W", "x_m", "y_m", "soc"])
     assert session._soc.usable_J() > 1.2 * ctx.scenario.battery.usable_J
     assert d.energy_available_J == pytest.approx(ctx.scenario.battery.usable_J)
+
+
+def test_the_low_estimate_takes_off_what_a_gauge_step_over_the_fall_leaves_unknown():
+    """soc = 1 - E / 1000 J read from 0 to 100 J: C = 1000 J, 900 J left, a 10 % fall: a
+    1 % step makes the slope uncertain by a tenth, so 90 J come off."""
+    from orange_plan.identify.soc import SocCapacity
+
+    gauge = SocCapacity()
+    e = np.linspace(0.0, 100.0, 21)
+    gauge.add(e, 1.0 - e / 1000.0)
+    assert gauge.usable_J() == pytest.approx(1000.0)
+    assert gauge.usable_low_J() == pytest.approx(910.0)
+    gauge.add(np.linspace(100.0, 500.0, 41), 1.0 - np.linspace(100.0, 500.0, 41) / 1000.0)
+    assert gauge.usable_low_J() == pytest.approx(1000.0 - 500.0 * 0.01 / 0.5)  # it shrinks
+
+
+def test_no_low_estimate_before_the_charge_has_fallen():
+    from orange_plan.identify.soc import SocCapacity
+
+    gauge = SocCapacity()
+    gauge.add(np.linspace(0.0, 10.0, 5), np.full(5, 1.0))
+    assert gauge.usable_low_J() is None

@@ -25,6 +25,8 @@ MIN_SPAN = 0.05
 """Fall of the state of charge [-] before the fit is used."""
 MIN_SAMPLES = 10
 """Samples with a state of charge before the fit is used."""
+GAUGE_STEP = 0.01
+"""Resolution of a battery gauge's state of charge (1 %) [-]: the error of a reading."""
 
 
 class SocCapacity:
@@ -40,6 +42,7 @@ class SocCapacity:
         self._sums = np.zeros(5)  # sum E, sum s, sum E^2, sum E s, sum s^2
         self._soc_max = -np.inf
         self._soc_min = np.inf
+        self._soc_last = np.nan
         self._scale = None  # energies are centred on the first one (round-off of E^2)
 
     def add(self, energy_J, soc) -> None:
@@ -60,6 +63,7 @@ class SocCapacity:
         self.n += int(e.size)
         self._soc_max = max(self._soc_max, float(s.max()))
         self._soc_min = min(self._soc_min, float(s.min()))
+        self._soc_last = float(s[-1])
 
     @property
     def span(self) -> float:
@@ -70,6 +74,14 @@ class SocCapacity:
         """Usable energy the state of charge shows [J], or None while it cannot say (too few
         samples, too small a fall, or a state of charge that does not fall with the energy
         drawn)."""
+        line = self._line()
+        if line is None:
+            return None
+        slope, intercept = line
+        return float(self._scale - intercept / slope)
+
+    def _line(self) -> tuple[float, float] | None:
+        """(slope [1/J], intercept [-]) of the fitted line, None while it cannot say."""
         if self.n < MIN_SAMPLES or self.span < MIN_SPAN:
             return None
         sx, ss, sxx, sxs, _ = self._sums
@@ -80,5 +92,20 @@ class SocCapacity:
         slope = (sxs - sx * ss / n) / var_x
         if not slope < 0:
             return None
-        intercept = (ss - slope * sx) / n
-        return float(self._scale - intercept / slope)
+        return float(slope), float((ss - slope * sx) / n)
+
+    def usable_low_J(self, step: float = GAUGE_STEP) -> float | None:
+        """A low estimate of ``usable_J`` [J], for spending the battery to its last joules.
+
+        The line's slope is known to about ``step / span`` (a reading's error over the fall
+        seen), so the energy still in the battery, ``soc_last C``, to ``soc_last C step /
+        span``: that much is taken off. Early (a 5 % fall) it is a fifth of what is left; it
+        shrinks as the charge falls. None while ``usable_J`` is.
+        """
+        shown = self.usable_J()
+        if shown is None:
+            return None
+        capacity = -1.0 / self._line()[0]
+        left = max(self._soc_last, 0.0) * capacity
+        return float(shown - left * step / self.span)
+

@@ -123,9 +123,13 @@ class MissionSession:
     def energy_available_J(self) -> float:
         """Usable energy counted on [J]: the scenario's, or the smaller capacity the
         telemetry's state of charge shows (``capacity_from_soc``): an aged battery must not
-        be spent as if it were new."""
+        be spent as if it were new. A closed loop counts on the low estimate
+        (``SocCapacity.usable_low_J``: the line's slope known to a gauge step over the fall
+        seen), since it spends the battery to the margin."""
         claimed = float(self.ctx.scenario.battery.usable_J)
-        shown = self._intake.soc.usable_J()
+        soc = self._intake.soc
+        # a closed loop spends to the last joules: it counts on the gauge's low estimate
+        shown = soc.usable_low_J() if getattr(self, "closed_loop", False) else soc.usable_J()
         return claimed if shown is None else min(claimed, shown)
 
     @property
