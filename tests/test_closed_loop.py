@@ -87,3 +87,22 @@ def test_closed_loop_missions_end_at_home_within_the_battery(map_seed, seed):
     out = fly_session(kit, spec, truth, seed)
     assert not out["stranded"], out
     assert out["energy_left_J"] >= 0
+
+
+def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
+    """Past the guaranteed extent the way home is never taken as better known than the
+    model's run-to-run discrepancy: reserve >= z_p * discrepancy * E_home."""
+    from scipy.special import ndtri
+
+    from orange_plan.planning.session import MissionSession
+    from orange_plan.sweep.flight import _simulate
+
+    spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
+    kit = map_kit(spec)
+    session = MissionSession(kit.ctx, kit.plan, n_vertices=300)
+    if not session.closed_loop:
+        pytest.skip("the first plan of this map is not a sweep with a continuation")
+    frame = _simulate(kit.ctx, session.route_xy_m, session.route_speed_mps, None, 0, 5.0).frame
+    d = session.feed(frame.iloc[:100][["t_s", "power_W", "x_m", "y_m"]])
+    z = float(ndtri(kit.ctx.scenario.mission.reserve.value))
+    assert d.reserve_J >= z * kit.ctx.model.discrepancy_rel_sd * d.energy_to_home_J - 1e-6
