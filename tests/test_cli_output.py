@@ -30,6 +30,36 @@ def test_a_piped_table_prints_every_value_whole():
     assert all(f"100.{i:06d}" in text for i in range(12))
 
 
+def test_an_exported_columns_is_the_narrowest_a_piped_table_is_printed(monkeypatch):
+    """A parent process may export COLUMNS without a terminal (GNU readline sets 80, and
+    pytest's xdist workers inherit it): piped tables still print whole, at least that wide."""
+    monkeypatch.setenv("COLUMNS", "80")
+    monkeypatch.setenv("LINES", "24")
+    screen = io.StringIO()
+    console = cli.WholeWhenPiped(file=screen)
+    table = Table()
+    for i in range(12):
+        table.add_column(f"column {i}", justify="right")
+    table.add_row(*[f"100.{i:06d}" for i in range(12)])
+    console.print(table)
+    console.print("short")
+    lines = screen.getvalue().splitlines()
+    assert "…" not in screen.getvalue()
+    assert all(f"100.{i:06d}" in screen.getvalue() for i in range(12))
+    assert console.width == 80 and lines[-1] == "short"
+
+
+def test_a_width_given_to_the_console_is_kept():
+    screen = io.StringIO()
+    console = cli.WholeWhenPiped(file=screen, width=40)
+    table = Table()
+    table.add_column("a long column heading", justify="right")
+    table.add_column("another long column heading", justify="right")
+    table.add_row("100.000001", "100.000002")
+    console.print(table)
+    assert max(len(line) for line in screen.getvalue().splitlines()) <= 40
+
+
 def test_reach_goal_table_keeps_every_number_whole(tmp_path):
     scenario = write_world(tmp_path, obstacles=[(10, 5, 14, 25)])
     goals = tmp_path / "goals.csv"
