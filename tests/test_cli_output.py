@@ -17,13 +17,19 @@ import orange_plan.cli as cli
 pytestmark = pytest.mark.timeout(120)
 
 
-def test_a_piped_table_prints_every_value_whole():
-    screen = io.StringIO()
-    console = cli.WholeWhenPiped(file=screen)
+def twelve_numbers() -> Table:
+    """A table wider than 80 columns: twelve numbers with six decimals under long headings."""
     table = Table()
     for i in range(12):
         table.add_column(f"column {i}", justify="right")
     table.add_row(*[f"100.{i:06d}" for i in range(12)])
+    return table
+
+
+def test_a_piped_table_prints_every_value_whole():
+    screen = io.StringIO()
+    console = cli.WholeWhenPiped(file=screen)
+    table = twelve_numbers()
     console.print(table)
     text = screen.getvalue()
     assert "…" not in text
@@ -37,10 +43,7 @@ def test_an_exported_columns_is_the_narrowest_a_piped_table_is_printed(monkeypat
     monkeypatch.setenv("LINES", "24")
     screen = io.StringIO()
     console = cli.WholeWhenPiped(file=screen)
-    table = Table()
-    for i in range(12):
-        table.add_column(f"column {i}", justify="right")
-    table.add_row(*[f"100.{i:06d}" for i in range(12)])
+    table = twelve_numbers()
     console.print(table)
     console.print("short")
     lines = screen.getvalue().splitlines()
