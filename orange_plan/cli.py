@@ -106,10 +106,20 @@ class WholeWhenPiped(Console):
     """A console that, when its output is not a terminal (a pipe, a file, a test runner),
     widens itself to each printed table's natural width: a number is never cut to ``100.…``
     or wrapped because an unknown terminal is assumed 80 columns wide. On a terminal it
-    behaves as rich does (fits the window)."""
+    behaves as rich does (fits the window).
+
+    A width given to the constructor is kept as given. A ``COLUMNS`` variable in the
+    environment is only the narrowest a piped table is printed: it describes a terminal, and
+    a parent process may export it without one (GNU readline sets ``COLUMNS=80`` in the
+    environment of every program it loads in, and their children inherit it)."""
+
+    def __init__(self, *, width: int | None = None, **kwargs) -> None:
+        super().__init__(width=width, **kwargs)
+        self._width_given = width is not None
+        self._widening = False
 
     def print(self, *objects, **kwargs) -> None:
-        if self.is_terminal or self._width is not None:
+        if self.is_terminal or self._width_given or self._widening:
             super().print(*objects, **kwargs)
             return
         from rich.measure import Measurement
@@ -117,11 +127,14 @@ class WholeWhenPiped(Console):
         wide = self.options.update(width=PIPED_MAX_WIDTH)
         natural = max((Measurement.get(self, wide, o).maximum for o in objects
                        if not isinstance(o, str)), default=0)
+        narrowest = self._width
         self._width = max(self.size.width, natural)
+        self._widening = True
         try:
             super().print(*objects, **kwargs)
         finally:
-            self._width = None
+            self._width = narrowest
+            self._widening = False
 
 
 PIPED_MAX_WIDTH = 1000

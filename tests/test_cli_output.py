@@ -17,17 +17,50 @@ import orange_plan.cli as cli
 pytestmark = pytest.mark.timeout(120)
 
 
-def test_a_piped_table_prints_every_value_whole():
-    screen = io.StringIO()
-    console = cli.WholeWhenPiped(file=screen)
+def twelve_numbers() -> Table:
+    """A table wider than 80 columns: twelve numbers with six decimals under long headings."""
     table = Table()
     for i in range(12):
         table.add_column(f"column {i}", justify="right")
     table.add_row(*[f"100.{i:06d}" for i in range(12)])
+    return table
+
+
+def test_a_piped_table_prints_every_value_whole():
+    screen = io.StringIO()
+    console = cli.WholeWhenPiped(file=screen)
+    table = twelve_numbers()
     console.print(table)
     text = screen.getvalue()
     assert "…" not in text
     assert all(f"100.{i:06d}" in text for i in range(12))
+
+
+def test_an_exported_columns_is_the_narrowest_a_piped_table_is_printed(monkeypatch):
+    """A parent process may export COLUMNS without a terminal (GNU readline sets 80, and
+    pytest's xdist workers inherit it): piped tables still print whole, at least that wide."""
+    monkeypatch.setenv("COLUMNS", "80")
+    monkeypatch.setenv("LINES", "24")
+    screen = io.StringIO()
+    console = cli.WholeWhenPiped(file=screen)
+    table = twelve_numbers()
+    console.print(table)
+    console.print("short")
+    lines = screen.getvalue().splitlines()
+    assert "…" not in screen.getvalue()
+    assert all(f"100.{i:06d}" in screen.getvalue() for i in range(12))
+    assert console.width == 80 and lines[-1] == "short"
+
+
+def test_a_width_given_to_the_console_is_kept():
+    screen = io.StringIO()
+    console = cli.WholeWhenPiped(file=screen, width=40)
+    table = Table()
+    table.add_column("a long column heading", justify="right")
+    table.add_column("another long column heading", justify="right")
+    table.add_row("100.000001", "100.000002")
+    console.print(table)
+    assert max(len(line) for line in screen.getvalue().splitlines()) <= 40
 
 
 def test_reach_goal_table_keeps_every_number_whole(tmp_path):
