@@ -26,10 +26,13 @@ SEED = 0
 Z_MAX = 3.0
 """A recovered parameter is within its uncertainty when |fitted - true| <= 3 sd."""
 
-NOT_YET: dict[str, str] = {}
-"""name -> the measured reason a case is not yet diagnosed right, at seed 0 (30 min, 10 Hz):
-see README "Diagnosis: measured"."""
-NOT_FOUND: set[str] = set()
+NOT_YET: dict[str, str] = {
+    # name -> the measured reason, at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
+    "drift": "a 4.2 W drift at t = 3.7 under the residual's autoregressive long-run variance "
+             "(4.5 under batch means); told the drift, the oracle gives "
+             "the same 3.7: the recording does not carry it at MIN_T = 4",
+}
+NOT_FOUND: set[str] = {"drift"}
 PARAMS_NOT_YET: dict[str, str] = {}
 
 
@@ -156,32 +159,27 @@ def test_a_term_the_recording_cannot_tell_apart_is_offered_as_an_alternative():
 
 def test_two_terms_that_mask_each_other_are_offered_as_alternatives():
     """Development payload seed 9: a 2.5 kg load dropped at 393 s while the cells warm. A
-    payload and a cold battery's loss each pass alone, and fitted side by side neither passes
-    added last to the other: whichever predicts the held-out blocks better is named (on this
-    recording the payload; on others a cold battery), and the other must be offered in its
-    place with the held-out RMSE it was measured at, and the evidence must say so. Checked
-    here by refitting those three models (``fit_design``) and judging them (``judge``)
-    directly."""
+    cold battery's loss predicts the held-out blocks 3 % better than the payload, so it is
+    named; but the payload passes in its place, and fitted side by side neither passes added
+    last to the other. Checked here by refitting those three models (``fit_design``) and
+    judging them (``judge``) directly: the payload must be offered, and the evidence must
+    say so."""
     from orange_plan.identify.diagnose import candidates, fit_design, judge
 
-    masking = {"payload", "battery_temperature"}
     case = concealed_case(["payload"], 9)
     result = diagnose(case.recording, case.ctx)
     (finding,) = result.findings
-    assert finding.term in masking
-    (other,) = masking - {finding.term}
-    (alt,) = [a for a in finding.alternatives if a["term"] == other]
+    (alt,) = [a for a in finding.alternatives if a["term"] == "payload"]
     assert alt["why"] == MASK_EACH_OTHER
     pool = {c.id: c for c in candidates()}
-    d = result.design
-    named, offered = pool[finding.variant or finding.term], pool[alt.get("variant", other)]
-    alone, instead = fit_design(d, [named]), fit_design(d, [offered])
-    both = fit_design(d, [named, offered])
-    assert judge(d, [offered], instead, fit_design(d, [])).accepted
+    d, named, payload = result.design, pool[finding.variant or finding.term], pool["payload"]
+    alone, instead = fit_design(d, [named]), fit_design(d, [payload])
+    both = fit_design(d, [named, payload])
+    assert judge(d, [payload], instead, fit_design(d, [])).accepted
     assert not judge(d, [named], both, instead).accepted
-    assert not judge(d, [offered], both, alone).accepted
+    assert not judge(d, [payload], both, alone).accepted
     assert instead.cv_rmse_W == pytest.approx(alt["holdout_rmse_W"])
-    assert f"{other} in its place passes too" in finding.evidence
+    assert "payload in its place passes too" in finding.evidence
     assert "cannot tell them apart" in finding.evidence
 
 

@@ -60,7 +60,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -660,6 +660,11 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
                          {k: float(v) for k, v in plan.measurement.items()})
 
 
+def drawn_world(world):
+    """``world`` on its map as given (no keep-away): where a recorded robot may have been."""
+    return replace(world, map=world.true_map, keep_away_m=0.0)
+
+
 _ROUTE_PRIORITY = ("turning", "surface_rolling", "grade", "regen", "aero_drag", *(
     t for t in CONCEALABLE if t not in ("turning", "surface_rolling", "grade", "regen",
                                         "aero_drag")))
@@ -669,7 +674,12 @@ set by route-shaping terms, and the first such term wins)."""
 
 def _drive(plan: _Plan, ctx: Context, rng, duration_s: float, rate_Hz: float):
     """Simulate the motion; returns the frame (true power, no noise) and the shift of the
-    simulator's clock onto the recording's [s]."""
+    simulator's clock onto the recording's [s].
+
+    The routes are drawn on the map as given, not the one the planner grows by the robot's
+    size: a recording is of a robot driven anywhere it fits, and the benchmark's cases stay
+    the same recordings whatever radius a scenario states."""
+    ctx = replace(ctx, world=drawn_world(ctx.world))
     robot = ctx.scenario.robot
     # 30-60 s landed at each end, at most a sixth of a short run each
     landed_s = (np.minimum(rng.uniform(30.0, 60.0, 2), duration_s / 6) if plan.landed
