@@ -54,15 +54,17 @@ def test_quick_run_completes_with_every_column(tmp_path):
             assert set(FLIGHT_KEYS) <= set(flight[method])
 
 
-def test_far_heavier_truth_without_replanning_strands():
-    """+80 kg on the 25 kg robot: the first tour flown open loop, and the session told not to
-    replan, both run out of energy before home; the oracle (true model) does not."""
+def test_far_heavier_truth_strands_the_open_loop_not_the_live_check():
+    """+80 kg on the 25 kg robot: the first tour flown open loop runs out of energy before
+    home; the session, told not to replan, still gets home: its live check on the measured
+    energy turns it home in time; the oracle (true model) gets home too."""
     spec = MissionSpec(0, heavier_kg=80.0, replanning=False, **TINY)
     result = run_one_mission(spec, 3)
     assert "+ 80 kg" in result["truth"]
+    assert result["open_loop"]["stranded"] and result["open_loop"]["energy_left_J"] < 0
+    assert not result["session"]["stranded"] and result["session"]["energy_left_J"] >= 0
+    assert result["session"]["returned_early"]
     for method in ("open_loop", "session"):
-        assert result[method]["stranded"], method
-        assert result[method]["energy_left_J"] < 0
         assert result[method]["replans"] == 0
     assert not result["oracle"]["stranded"]
     assert result["oracle"]["energy_left_J"] > 0

@@ -106,3 +106,14 @@ def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
     d = session.feed(frame.iloc[:100][["t_s", "power_W", "x_m", "y_m"]])
     z = float(ndtri(kit.ctx.scenario.mission.reserve.value))
     assert d.reserve_J >= z * kit.ctx.model.discrepancy_rel_sd * d.energy_to_home_J - 1e-6
+
+
+def test_the_session_names_the_way_home_it_costs():
+    from orange_plan.planning.session import MissionSession
+
+    spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
+    kit = map_kit(spec)
+    session = MissionSession(kit.ctx, kit.plan, n_vertices=300)
+    back = session.way_home_xy_m()
+    assert np.allclose(back[-1], kit.ctx.world.home_xy_m)
+    assert kit.ctx.world.segments_free(back[:-1], back[1:]).all()

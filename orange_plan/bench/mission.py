@@ -12,9 +12,10 @@ ways on the same map, under the same truth and seed:
 (b) ``open_loop``: the same first tour flown as planned, whatever happens.
 (c) ``lawnmower``: a boustrophedon (``planning.lawnmower``) turned home in flight by the
     PX4-style remaining-flight-time rule (``bench.px4_rtl``).
-(e) ``lawnmower_energy``: the same boustrophedon turned home by the session's energy rule
-    (``bench.px4_rtl.EnergyRule``: measured energy + the way home + the reserve for the
-    return alone), so that the pattern and the rule can be told apart.
+(e) ``lawnmower_energy``: the same boustrophedon flown by ``MissionSession`` as a closed loop
+    (``fly_lawnmower_session``): turned home by the session's own live check (measured
+    energy + the look-ahead + the way home + the reserve for the return alone, the battery's
+    ``soc`` read), never replanned, so that the pattern and the rule can be told apart.
 (d) ``oracle``: a tour planned with the true model (the truth's coefficients, payload, mean
     wind and usable energy; the same reserve rule and covariance), flown open loop.
 
@@ -267,8 +268,7 @@ def oracle_context(ctx, truth):
 
 
 def fly_lawnmower(kit: _MapKit, truth, seed: int, rate: float, rule=None) -> dict:
-    """(c): the lawnmower turned home by the PX4-style rule; (e) with ``rule`` = the
-    session's ``EnergyRule`` (the same path: the pattern and the rule told apart)."""
+    """(c): the lawnmower turned home by the PX4-style rule (or another ``rule``)."""
     from orange_plan.bench.px4_rtl import ReturnRule, fly_with_return_rule
 
     sim, decision, _ = fly_with_return_rule(kit.ctx, kit.lawn_xy, kit.home, truth, seed,
@@ -280,7 +280,27 @@ def fly_lawnmower(kit: _MapKit, truth, seed: int, rate: float, rule=None) -> dic
     return flown.outcome(kit.ctx)
 
 
-def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
+def fly_lawnmower_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
+    """(e): the lawnmower flown by ``MissionSession`` as a closed loop (``closed_loop=True``:
+    the live check alone turns it home; no replans): the session's own energy rule, with its
+    look-ahead, its return reserve and the battery's ``soc``, on the baseline's pattern."""
+    return fly_session(kit, replace(spec, replanning=False), truth, seed,
+                       plan=lawnmower_plan(kit), closed_loop=True)
+
+
+def lawnmower_plan(kit: _MapKit):
+    """The lawnmower route as a plan (home -> lanes -> home at the cruise speed; no margins:
+    a closed loop does not read them)."""
+    from orange_plan.planning.plan import Plan
+
+    xy = np.asarray(kit.lawn_xy, float)
+    n, zeros = len(xy), np.zeros(len(xy))
+    return Plan(xy, zeros, np.full(n, kit.home.speed_mps), zeros, zeros, zeros, zeros,
+                np.empty((0, 2)), None, {})
+
+
+def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int, plan=None,
+                closed_loop: bool = False) -> dict:
     """(a): the first tour flown in closed loop with ``MissionSession`` (module docstring):
     the session's route (``MissionSession.route_xy_m``: a plan that follows a sweep goes on
     past its guaranteed extent along its continuation until the live check turns it home).
@@ -292,8 +312,9 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
     from orange_plan.planning.session import MissionSession
 
     ctx, rate = kit.ctx, spec.sample_rate_Hz
-    session = MissionSession(ctx, kit.plan, n_vertices=spec.n_vertices, seed=0,
-                             planner_kwargs={"bitstar_legs": 0})
+    session = MissionSession(ctx, kit.plan if plan is None else plan,
+                             n_vertices=spec.n_vertices, seed=0,
+                             planner_kwargs={"bitstar_legs": 0}, closed_loop=closed_loop)
     xy, speed = session.route_xy_m, session.route_speed_mps
     flown = _Flown(1.0 / rate, [], [], math.nan)
     chunk = max(1, round(spec.chunk_s * rate))
@@ -344,7 +365,11 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int) -> dict:
                 speed = np.r_[speed[0], speed]
         else:
             flown.returned_by_rule = True
-            xy = kit.home.path(here)
+            # the way home the session costed (the bench's own shortest-return tree may
+            # join home straight over a hill the session's roadmap goes round)
+            xy = session.way_home_xy_m()
+            if xy is None or len(xy) < 2:
+                xy = kit.home.path(here)
             speed = np.full(len(xy), kit.home.speed_mps)
             returning = True
         if len(xy) < 2 or float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) < 1e-6:
@@ -381,9 +406,7 @@ def run_one_mission(spec: MissionSpec, seed: int) -> dict:
             elif method == "lawnmower":
                 res = fly_lawnmower(kit, truth, seed, rate)
             elif method == "lawnmower_energy":
-                from orange_plan.bench.px4_rtl import EnergyRule
-
-                res = fly_lawnmower(kit, truth, seed, rate, EnergyRule())
+                res = fly_lawnmower_session(kit, spec, truth, seed)
             elif method == "oracle":
                 from orange_plan.planning.tour import plan_tour
 

@@ -55,6 +55,9 @@ class MissionSession:
     planner_kwargs : extra keyword arguments of ``plan_tour`` (default: BIT* refinement off,
         so a replan depends only on its inputs and the seed)
     memory_s, window_s : the online estimator's forgetting time and energy-per-metre window [s]
+    closed_loop : fly any plan as a closed loop (a route that need not keep a margin at its
+        vertices, e.g. a whole lawnmower: the live check alone turns it home); by default
+        only a plan with a continuation is
 
     Attributes
     ----------
@@ -72,7 +75,9 @@ class MissionSession:
 
     def __init__(self, ctx, plan: Plan | None = None, *, n_vertices: int = 3000, seed: int = 0,
                  replan_margin_J: float | None = None, planner_kwargs: dict | None = None,
-                 memory_s: float = 300.0, window_s: float = 300.0):
+                 memory_s: float = 300.0, window_s: float = 300.0,
+                 closed_loop: bool = False):
+        self._closed_loop_always = bool(closed_loop)
         margin = 0.0 if replan_margin_J is None else float(replan_margin_J)
         if not math.isfinite(margin):
             raise InputError(f"replan_margin_J = {replan_margin_J!r} must be a finite number")
@@ -196,8 +201,8 @@ class MissionSession:
         # with a continuation the robot flies on past the guaranteed extent, turning home
         # on the live check alone (the rest of the tour is not what it flies)
         self.route_xy_m, self.route_speed_mps, self._turn_index = plan.closed_loop_route()
-        self.closed_loop = plan.continuation_xy_m is not None and \
-            self._turn_index < len(self.route_xy_m) - 1
+        self.closed_loop = self._closed_loop_always or (
+            plan.continuation_xy_m is not None and self._turn_index < len(self.route_xy_m) - 1)
         self._plan_model = self.online_model
         self._plan_conditions = self.conditions_now
         self._plan_map_version = self.map_version
@@ -344,6 +349,15 @@ class MissionSession:
 
         return simplified_range(self.ctx.scenario, self.online_model,
                                 self.ctx.world.default_crr).energy_per_m_J
+
+    def way_home_xy_m(self) -> np.ndarray | None:
+        """The way home the decision costs, from the position (the roadmap's best return,
+        joined straight): what a robot told to return home should drive [m]; None when no
+        way is found."""
+        reach, tree = self._reach()
+        exact = replace(reach.exact, model=self.online_model, world=self.ctx.world,
+                        conditions=self.conditions_now)
+        return way_home(replace(reach, exact=exact), self.position_xy_m, tree)
 
     def _return_home(self, xy=None) -> Home:
         """Best roadmap return from the position (or ``xy``; free: ``homing_state`` asks only
@@ -513,7 +527,8 @@ class MissionSession:
             "scenario": self.ctx.scenario.name,
             "n_vertices": self.n_vertices, "seed": self.seed,
             "replan_margin_J": self.replan_margin_J, "planner_kwargs": self.planner_kwargs,
-            "memory_s": self.memory_s, "window_s": self.window_s}, self._initial_plan)
+            "memory_s": self.memory_s, "window_s": self.window_s,
+            "closed_loop": self._closed_loop_always}, self._initial_plan)
 
     @classmethod
     def from_state(cls, ctx, state: dict) -> MissionSession:
@@ -528,7 +543,7 @@ class MissionSession:
         session = cls(ctx, plan_from_geojson(state["plan"]), n_vertices=state["n_vertices"],
                       seed=state["seed"], replan_margin_J=state["replan_margin_J"],
                       planner_kwargs=state["planner_kwargs"], memory_s=state["memory_s"],
-                      window_s=state["window_s"])
+                      window_s=state["window_s"], closed_loop=state.get("closed_loop", False))
         replay_events(session, state["events"])
         return session
 
