@@ -22,9 +22,12 @@ chooses and orders them under an energy budget; the CasADi speed optimiser
 the sensor keeps up); and the result is re-evaluated: energies along the walk with
 ``path_energy`` at those speeds, the return from every vertex on the roadmap, the reserve from
 the model. If any vertex breaks the homing constraint the budget is lowered by the deficit and
-the tour re-chosen. Why the answer is safe: feasibility is decided on the re-evaluated walk, at
-every vertex, not on the heuristic's estimates; a plan is only returned when every margin is
->= 0.
+the tour re-chosen. Beside it, complete sweeps (``planning.sweeps``) are scored under the
+closed-loop homing rule; the best one's prefix is checked the same way (``sweep_tour``) and
+the rest kept as the plan's continuation; ``plan_tour`` keeps whichever answer is expected to
+sense more in closed loop. Why the answer is safe: feasibility is decided on the re-evaluated
+walk, at every vertex, not on the heuristic's estimates; a plan is only returned when every
+margin is >= 0 (a continuation is flown only under the live check).
 """
 
 from __future__ import annotations
