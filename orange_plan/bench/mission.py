@@ -1,4 +1,4 @@
-"""Monte Carlo study of whole missions (``orange-plan bench mission``, issue #10 item 5).
+"""Monte Carlo study of whole missions (``orange-plan bench mission``).
 
 Many simulated missions, each in a world whose truth differs from the scenario, flown four
 ways on the same map, under the same truth and seed:

@@ -325,7 +325,7 @@ class _MapRun:
 
 def at_confidence(planner: Planner, confidence: float | None) -> Planner:
     """``planner`` with the scenario's reserve replaced by ``confidence = p`` (None: as the
-    scenario says). The #8 target asks for zero strandings *at confidence 0.95*, so (b) and
+    scenario says). The stranding target is zero strandings *at confidence 0.95*, so (b) and
     (c) plan with that reserve whatever rule a shipped scenario uses."""
     if confidence is None:
         return planner

@@ -1,4 +1,4 @@
-"""``orange-plan bench``: benchmarks (``bench reach``: the planning core of issue #3)."""
+"""``orange-plan bench``: benchmarks (``bench reach``: the planning core: roadmap, reach, speeds)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def bench_reach_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Roadmap/field build time, goal-query throughput, path energy vs a dense-grid
-    reference and vs the shortest path, and speed-optimiser times (issue #3 targets)."""
+    reference and vs the shortest path, and speed-optimiser times."""
     from orange_plan.bench.reach import run_reach_bench
     from orange_plan.context import load_context
 
@@ -130,7 +130,7 @@ def bench_plan_cmd(
 ) -> None:
     """Coverage with a guaranteed return: (a) lawnmower + PX4 return rule, (b) the planner
     with a distance budget, (c) the planner; flown under truths within the calibration
-    uncertainty (issue #8)."""
+    uncertainty."""
     import functools
     import json
     import tempfile
@@ -208,7 +208,7 @@ def bench_service_cmd(
     as_json: JsonOpt = False,
 ) -> None:
     """Telemetry throughput and POST latency of one `orange-plan serve` (a subprocess on
-    127.0.0.1, a temporary database) under a paced fleet of robots (issue #10 targets)."""
+    127.0.0.1, a temporary database) under a paced fleet of robots."""
     from orange_plan.bench.service_load import run_service_bench, service_table
 
     for name, value, low in (("--seconds", seconds, 1.0), ("--repeats", repeats, 1),
@@ -249,7 +249,7 @@ def bench_mission_cmd(
 ) -> None:
     """Monte Carlo missions under truths within and beyond the calibration uncertainty:
     (a) the session with replanning, (b) the first plan open loop, (c) a lawnmower with the
-    PX4-style return rule, (d) the oracle plan made with the true model (issue #10)."""
+    PX4-style return rule, (d) the oracle plan made with the true model."""
     import json
 
     from orange_plan.atomic import atomic_path
