@@ -78,6 +78,7 @@ class MissionSession:
                  memory_s: float = 300.0, window_s: float = 300.0,
                  closed_loop: bool = False):
         self._closed_loop_always = bool(closed_loop)
+        self.closed_loop = self._closed_loop_always  # until a plan is adopted (``_adopt``)
         margin = 0.0 if replan_margin_J is None else float(replan_margin_J)
         if not math.isfinite(margin):
             raise InputError(f"replan_margin_J = {replan_margin_J!r} must be a finite number")
@@ -143,7 +144,7 @@ class MissionSession:
         claimed = float(self.ctx.scenario.battery.usable_J)
         soc = self._intake.soc
         # a closed loop spends to the last joules: it counts on the gauge's low estimate
-        shown = soc.usable_low_J() if getattr(self, "closed_loop", False) else soc.usable_J()
+        shown = soc.usable_low_J() if self.closed_loop else soc.usable_J()
         return claimed if shown is None else min(claimed, shown)
 
     @property
@@ -389,7 +390,7 @@ class MissionSession:
         estimator learns the run on the way out, but the way back crosses other ground in
         other headings; ``RETURN_SPREAD_FLOOR`` of the model's run-to-run discrepancy (0
         for an open-loop plan, whose own reserve covers the whole trip)."""
-        if not getattr(self, "closed_loop", False):
+        if not self.closed_loop:
             return 0.0
         return RETURN_SPREAD_FLOOR * float(self.ctx.model.discrepancy_rel_sd)
 
