@@ -23,14 +23,14 @@ OFF_MAP_MIN_M = 10.0
 def off_map_tolerance_m(world) -> float:
     """How far outside the map's boundary box a position may lie and still count as on the
     map [m]."""
-    x0, y0, x1, y1 = world.map.boundary.bounds
+    x0, y0, x1, y1 = world.true_map.boundary.bounds
     return max(OFF_MAP_MIN_M, OFF_MAP_TOLERANCE * max(x1 - x0, y1 - y0))
 
 
 def distance_off_map_m(world, x_m, y_m) -> np.ndarray:
     """Distance of each position beyond the map's boundary box (0 inside it) [m]."""
     x, y = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
-    x0, y0, x1, y1 = world.map.boundary.bounds
+    x0, y0, x1, y1 = world.true_map.boundary.bounds
     return np.maximum.reduce([x0 - x, x - x1, y0 - y, y - y1, np.zeros(x.shape)])
 
 
@@ -59,7 +59,7 @@ def check_on_map(world, x_m, y_m, source: str, row: str = "sample") -> None:
     far = ~(off <= tol)  # a NaN position is not on the map either
     if far.any():
         i = int(np.flatnonzero(far)[0])
-        x0, y0, x1, y1 = world.map.boundary.bounds
+        x0, y0, x1, y1 = world.true_map.boundary.bounds
         raise InputError(
             f"{source}: {int(far.sum())} of {len(x)} positions lie more than {tol:g} m outside "
             f"the map's boundary box (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} m), the first at "
