@@ -66,6 +66,9 @@ DEFAULT_ACCEPTANCE_RADIUS_M = 2.0
 WPNAV_RADIUS; PX4 sets NAV_ACC_RAD) [m]: the turn there starts this far before the waypoint."""
 HOME_MATCH_M = 1.0
 """A last waypoint this close to home (horizontally) is the mission's way home [m]."""
+MIN_SPEED_MPS = 0.01
+"""Slowest commanded speed accepted [m/s]: slower is a slip of units, not a mission (a
+kilometre would take a day)."""
 ROUTE_COLUMNS = ("x_m", "y_m", "z_m", "speed_mps", "stay_s", "corner_radius_m")
 """Route CSV columns (the first two required)."""
 QGC_SUFFIXES = (".plan",)
@@ -135,6 +138,13 @@ class Mission:
             raise InputError(f"{self.source}: take-off altitude {self.takeoff_alt_m!r} must be "
                              "a finite number >= 0 m above home")
 
+    def turning_without_slowing(self) -> Mission:
+        """The same mission with every waypoint but the last passed without slowing (corner
+        radius inf): the motion a plan's tour is modelled with."""
+        wps = self.waypoints
+        passed = [replace(w, corner_radius_m=math.inf) for w in wps[:-1]]
+        return replace(self, waypoints=(*passed, wps[-1]))
+
     @property
     def xyz_m(self) -> np.ndarray:
         """Waypoint positions, shape (n, 3) [m]."""
@@ -150,8 +160,10 @@ def _check_waypoint(wp: MissionWaypoint, where: str) -> None:
         raise InputError(f"{where}: altitude {wp.z_m:g} m is below home (the ground)")
     if wp.stay_s < 0:
         raise InputError(f"{where}: hold time {wp.stay_s:g} s must be >= 0")
-    if wp.speed_mps is not None and not (math.isfinite(wp.speed_mps) and wp.speed_mps > 0):
-        raise InputError(f"{where}: speed {wp.speed_mps!r} m/s must be > 0")
+    if wp.speed_mps is not None and not (math.isfinite(wp.speed_mps)
+                                         and wp.speed_mps >= MIN_SPEED_MPS):
+        raise InputError(f"{where}: speed {wp.speed_mps!r} m/s must be >= {MIN_SPEED_MPS:g} "
+                         "(m/s)")
     if wp.corner_radius_m is not None and not wp.corner_radius_m >= 0:  # inf: no slowing
         raise InputError(f"{where}: corner radius {wp.corner_radius_m!r} m must be >= 0")
 

@@ -54,7 +54,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, OrangeError
 from orange_plan.export.missions_in import Mission, MissionWaypoint
 from orange_plan.limits import (
     MAX_MISSION_HOME_SAMPLES,
@@ -63,6 +63,7 @@ from orange_plan.limits import (
 )
 from orange_plan.physics.pathcost import Steps, max_step_m, subdivide
 from orange_plan.physics.profile import (
+    CREEP_FRACTION,
     SAMPLE_DT_S,
     STOP_EVERY_S,
     TURN_SPREAD_S,
@@ -320,6 +321,8 @@ def _with_corners(stages: list[_Stage], mission: Mission, robot: _Robot) -> list
         else:
             speed = math.sqrt(robot.accel_mps2 * radius / math.tan(turn / 2)) \
                 if turn < math.pi - 1e-9 else 0.0
+            if speed < CREEP_FRACTION * max(st.speed, nxt.speed):
+                speed = 0.0  # slower than the Driver's creep: a stop at the waypoint
         out.append(replace(st, corner_mps=speed, corner_r_m=0.0 if radius == math.inf
                            else radius))
     return out
@@ -476,6 +479,9 @@ def _drive_run(edges, speeds, accel: float, dt: float, duty: float) -> dict:
     guess = int(2 * (edges[-1] / slow + 2 * float(np.max(speeds)) / accel) / (dt * duty)) + 16
     parts = [driver.run(guess)]
     while not driver.finished:
+        if len(parts) >= 8:  # the guess is an upper bound several times over
+            raise OrangeError(f"a mission run of {edges[-1]:g} m did not end in "
+                              f"{8 * guess * dt:g} s of driving")
         parts.append(driver.run(guess))
     if len(parts) == 1:
         return parts[0]
@@ -535,7 +541,7 @@ def _check_placement(mission: Mission, world, aerial: bool) -> None:
 
 def _samples_per_m(stages: list[_Stage], duty: float, step_m: float) -> float:
     """Upper bound of samples (or sub-steps) per metre of the stages' flight."""
-    slowest = max(min(st.speed for st in stages), 1e-3)
+    slowest = min(st.speed for st in stages)
     return max(1.0 / (slowest * SAMPLE_DT_S * duty), 1.0 / step_m)
 
 
