@@ -287,6 +287,7 @@ def mission_from_items(home, items, origin, source: str,
                          "latitude/longitude/altitude")
     frame_origin = origin or SimpleNamespace(lat_deg=home_lat, lon_deg=home_lon, alt_m=home_alt)
     hx, hy = (float(v) for v in latlon_to_xy(frame_origin, home_lat, home_lon))
+    placed = _placed(items, frame_origin, source)
     points = [MissionWaypoint(hx, hy, 0.0)]
     speed, takeoff, returns, landed = None, None, False, False
     for k, it in enumerate(items, start=1):
@@ -303,7 +304,7 @@ def mission_from_items(home, items, origin, source: str,
         elif it.command == NAV_TAKEOFF:
             takeoff = _altitude(it, home_alt, where)
         elif it.command in (NAV_WAYPOINT, NAV_LOITER_TIME):
-            x, y, z = _position(it, frame_origin, home_alt, where)
+            (x, y), z = placed[k], _altitude(it, home_alt, where)
             hold = it.params[0] if np.isfinite(it.params[0]) else 0.0
             radius = it.params[1] if it.command == NAV_WAYPOINT else 0.0
             radius = radius if np.isfinite(radius) and radius > 0 else acceptance_radius_m
@@ -314,7 +315,7 @@ def mission_from_items(home, items, origin, source: str,
         elif it.command == NAV_LAND:
             if np.isfinite(it.params[4]) and np.isfinite(it.params[5]) and (
                     it.params[4], it.params[5]) != (0.0, 0.0):
-                x, y, _ = _position(it, frame_origin, home_alt, where)
+                x, y = placed[k]
                 last = points[-1]
                 points.append(MissionWaypoint(x, y, last.z_m, speed, 0.0, None))
             landed = True
@@ -345,14 +346,29 @@ def _altitude(it: MissionItem, home_alt: float, where: str) -> float:
     return float(z)
 
 
-def _position(it: MissionItem, origin, home_alt: float, where: str):
-    lat, lon = it.params[4], it.params[5]
-    if not (math.isfinite(lat) and math.isfinite(lon)):
-        raise InputError(f"{where}: latitude/longitude ({lat}, {lon}) is not a number")
-    if abs(lat) > 90 or abs(lon) > 180:
-        raise InputError(f"{where}: latitude/longitude ({lat}, {lon}) is out of range")
-    x, y = latlon_to_xy(origin, lat, lon)
-    return float(x), float(y), _altitude(it, home_alt, where)
+def _placed(items, origin, source: str) -> dict[int, tuple[float, float]]:
+    """Map-frame (x, y) of every item with a position (1-based item number -> [m]), in one
+    conversion; a waypoint's latitude/longitude that is not a number is refused."""
+    numbers, lat, lon = [], [], []
+    for k, it in enumerate(items, start=1):
+        if it.command in (NAV_WAYPOINT, NAV_LOITER_TIME) or (
+                it.command == NAV_LAND and (it.params[4], it.params[5]) != (0.0, 0.0)
+                and np.isfinite(it.params[4]) and np.isfinite(it.params[5])):
+            a, b = it.params[4], it.params[5]
+            if not (math.isfinite(a) and math.isfinite(b)):
+                raise InputError(f"{source}: item {k}: latitude/longitude ({a}, {b}) is not a "
+                                 "number")
+            if abs(a) > 90 or abs(b) > 180:
+                raise InputError(f"{source}: item {k}: latitude/longitude ({a}, {b}) is out "
+                                 "of range")
+            numbers.append(k)
+            lat.append(a)
+            lon.append(b)
+    if not numbers:
+        return {}
+    x, y = latlon_to_xy(origin, np.array(lat), np.array(lon))
+    return {k: (float(a), float(b)) for k, a, b in zip(numbers, np.atleast_1d(x),
+                                                         np.atleast_1d(y))}
 
 
 # --- map-frame and GeoJSON missions -------------------------------------------------------------
