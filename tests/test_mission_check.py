@@ -428,3 +428,40 @@ def test_a_corner_too_tight_to_fly_is_a_stop(small):
 
     tight = check_mission(mission(1e-300), ctx)
     assert tight.energy_J == pytest.approx(check_mission(mission(None), ctx).energy_J)
+
+
+def test_a_geojson_linestring_in_longitude_latitude(aerial, tmp_path):
+    _, scenario, ctx, _ = aerial
+    coords = [[*latlon(x, y)[::-1], z] for x, y, z in ((2, 2, 0), (30, 5, 12), (30, 30, 12))]
+    path = tmp_path / "line.geojson"
+    path.write_text(json.dumps({"type": "Feature", "properties": {},
+                                "geometry": {"type": "LineString", "coordinates": coords}}))
+    mission = read_mission(path, ctx.world.map.origin)
+    assert mission.xyz_m == pytest.approx(np.array([[2, 2, 0], [30, 5, 12], [30, 30, 12]]),
+                                          abs=1e-6)
+    assert all(w.corner_radius_m is None for w in mission.waypoints)  # a normal mission
+    code, text, err = run_cli("check", path, "--scenario", scenario, "--json")
+    assert code == 0, err
+    assert [leg["kind"] for leg in json.loads(text)["legs"]] == ["leg", "leg", "return",
+                                                                "landing"]
+
+
+def test_without_an_origin_the_mission_is_checked_in_a_frame_at_its_home(tmp_path):
+    scenario = write_world(tmp_path, width_m=30.0, height_m=20.0)  # its map has no origin
+    items = [waypoint(40, 2, 0), waypoint(40, 30, 0)]  # metres from MUNICH's (2, 2)
+    path = tmp_path / "far.plan"
+    path.write_text(json.dumps(qgc_file(items, vehicle=10)))
+    code, text, err = run_cli("check", path, "--scenario", scenario, "--json")
+    assert code == 0, err
+    report = json.loads(text)
+    assert report["in_map_frame"] is False
+    first = report["legs"][0]
+    assert first["from_xyz_m"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-6)
+    assert first["to_xyz_m"][:2] == pytest.approx([38.0, 0.0], abs=1e-3)
+
+
+def test_a_scenario_serves_as_well_as_its_context(small):
+    ctx = small["aerial"]
+    mission = Mission((MissionWaypoint(2, 2), MissionWaypoint(20, 10, 10.0)), takeoff_alt_m=5.0)
+    assert check_mission(mission, ctx.scenario).as_dict() == check_mission(mission,
+                                                                            ctx).as_dict()
