@@ -465,3 +465,15 @@ def test_a_scenario_serves_as_well_as_its_context(small):
     mission = Mission((MissionWaypoint(2, 2), MissionWaypoint(20, 10, 10.0)), takeoff_alt_m=5.0)
     assert check_mission(mission, ctx.scenario).as_dict() == check_mission(mission,
                                                                             ctx).as_dict()
+
+
+def test_a_hold_at_a_repeated_waypoint_counts(small):
+    """A waypoint given twice (a hold written as a second, identical waypoint) had its hold
+    dropped with the empty leg."""
+    ctx = small["ground"]
+    once = Mission((MissionWaypoint(2, 2), MissionWaypoint(20, 2, stay_s=10.0)),
+                   returns_home=False)
+    twice = Mission((MissionWaypoint(2, 2), MissionWaypoint(20, 2),
+                     MissionWaypoint(20, 2, stay_s=10.0)), returns_home=False)
+    assert check_mission(twice, ctx).duration_s == pytest.approx(
+        check_mission(once, ctx).duration_s)

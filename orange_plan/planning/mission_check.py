@@ -278,16 +278,23 @@ def _stages(mission: Mission, robot: _Robot) -> list[_Stage]:
         if robot.aerial else 0.0
     stages = []
     here = (*home, takeoff)
+    waiting_s = wps[0].stay_s  # a hold at home before anything flies
     if takeoff > 0:
         stages.append(_Stage("takeoff", 0, 0, (*home, 0.0), here,
-                             _leg_speed(robot, None, (*home, 0.0), here), wps[0].stay_s))
+                             _leg_speed(robot, None, (*home, 0.0), here), waiting_s))
+        waiting_s = 0.0
     for i in range(len(wps) - 1):
         end = (wps[i + 1].x_m, wps[i + 1].y_m, z[i + 1])
-        if np.linalg.norm(np.subtract(end, here)) == 0:
-            continue  # a repeated waypoint: nothing to fly (its hold still counts below)
+        if np.linalg.norm(np.subtract(end, here)) == 0:  # a repeated waypoint: only its hold
+            if stages:
+                stages[-1] = replace(stages[-1], hold_s=stages[-1].hold_s + wps[i + 1].stay_s)
+            else:
+                waiting_s += wps[i + 1].stay_s
+            continue
         stages.append(_Stage("leg", i, i + 1, here, end,
                              _leg_speed(robot, wps[i].speed_mps, here, end), wps[i + 1].stay_s,
-                             wps[0].stay_s if not stages else 0.0))
+                             waiting_s))
+        waiting_s = 0.0
         here = end
     last = len(wps) - 1
     if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > 0:
