@@ -410,12 +410,13 @@ def _step_speeds(stages: list[_Stage], steps: Steps, robot: _Robot, dt: float) -
     edges = np.r_[0.0, np.cumsum(steps.length_m)]
     stage_end = edges[np.searchsorted(steps.segment, np.arange(len(stages)), side="right")]
     a = robot.accel_mps2
+    top = max(st.speed for st in stages)  # braking may have to start on an earlier stage
     for k, st in enumerate(stages[:-1]):
         v_c = st.corner_mps
         if not (0 < v_c < max(st.speed, stages[k + 1].speed)):
             continue
         s_c, r = stage_end[k], st.corner_r_m
-        reach = r + (st.speed**2 - v_c**2) / (2 * a) + a * dt * dt
+        reach = r + (top**2 - v_c**2) / (2 * a) + a * dt * dt
         lo = np.searchsorted(edges, s_c - reach - 1e-9, side="left")
         hi = np.searchsorted(edges, s_c + r + 1e-9, side="right")
         idx = np.arange(max(lo - 1, 0), min(hi, speed.size))
