@@ -10,6 +10,7 @@ once as the whole command in a fresh process (interpreter and imports included).
 from __future__ import annotations
 
 import math
+import resource
 import statistics
 import subprocess
 import sys
@@ -49,7 +50,8 @@ class CheckBench:
     scenario : its name; waypoints : waypoints of the survey (home excluded)
     legs : stages checked; route_m : the route's length [m]
     read_s : reading the .plan (median) [s]; check_s : ``check_mission`` (median) [s]
-    command_s : the whole ``orange-plan check --json`` in a fresh process [s]
+    command_s : the whole ``orange-plan check --json`` in a fresh process, wall clock [s]
+    command_cpu_s : its CPU time (user + system): what it costs on an idle machine [s]
     verdict : the check's verdict; energy_J : the mission's energy [J]
     repeats : in-process repeats; target_s : the target for ``read_s + check_s``
     """
@@ -61,6 +63,7 @@ class CheckBench:
     read_s: float
     check_s: float
     command_s: float
+    command_cpu_s: float
     verdict: str
     energy_J: float
     repeats: int
@@ -124,12 +127,16 @@ def run_check_bench(scenario_path, n_waypoints: int = 500, repeats: int = 3) -> 
             result = check_mission(mission, ctx, in_map_frame=origin is not None)
             reads.append(t1 - t0)
             checks.append(time.perf_counter() - t1)
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "orange_plan.cli", "check", str(path),
                         "--scenario", str(scenario_path), "--json"], check=True,
                        capture_output=True)
         command_s = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        command_cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return CheckBench(ctx.scenario.name, n_waypoints, len(result.legs),
                       float(result.legs[-1].distance_m), statistics.median(reads),
-                      statistics.median(checks), command_s, result.verdict, result.energy_J,
+                      statistics.median(checks), command_s, command_cpu_s, result.verdict,
+                      result.energy_J,
                       repeats)

@@ -53,6 +53,8 @@ def bench_check_cmd(
                   f"{result.check_s:.3f} s", "")
     table.add_row("read + check", f"{result.read_s + result.check_s:.3f} s",
                   f"<= {result.target_s:g} s")
-    table.add_row("whole command, fresh process (imports included)",
+    table.add_row("whole command, fresh process (imports included): wall clock",
                   f"{result.command_s:.2f} s", "")
+    table.add_row("whole command, fresh process: CPU time (user + system)",
+                  f"{result.command_cpu_s:.2f} s", "")
     out.print(table)
