@@ -477,3 +477,33 @@ def test_a_hold_at_a_repeated_waypoint_counts(small):
                      MissionWaypoint(20, 2, stay_s=10.0)), returns_home=False)
     assert check_mission(twice, ctx).duration_s == pytest.approx(
         check_mission(once, ctx).duration_s)
+
+
+@settings(max_examples=30, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(turn_deg=st.floats(10.0, 170.0), radius=st.floats(0.2, 20.0), speed=st.floats(1.0, 5.0))
+def test_the_robot_turns_a_corner_at_most_at_the_arcs_speed(small, turn_deg, radius, speed):
+    """At a corner of heading change theta and radius r the robot is at most
+    ``sqrt(accel_max r / tan(theta / 2))`` (one sample's acceleration of slack) where the legs
+    meet: the last sample of the first leg and the first of the next."""
+    from orange_plan.physics.pathcost import max_step_m
+    from orange_plan.planning.mission_check import _drive, _robot, _stages, _with_corners
+
+    ctx = small["aerial"]
+    theta = math.radians(turn_deg)
+    corner = (15.0, 2.0)
+    after = (corner[0] + 12 * math.cos(theta), corner[1] + 12 * math.sin(theta))
+    mission = Mission((MissionWaypoint(2.0, 2.0, 10.0, speed),
+                       MissionWaypoint(*corner, 10.0, speed, 0.0, radius),
+                       MissionWaypoint(*after, 10.0)), returns_home=False)
+    robot = _robot(ctx)
+    stages = _with_corners(_stages(mission, robot), mission, robot)
+    samples = _drive([(None, stages)], ctx.world, robot, ctx.conditions,
+                     max_step_m(ctx.world))
+    a, dt = robot.accel_mps2, 0.1
+    allowed = math.sqrt(a * radius / math.tan(theta / 2))
+    leg = next(k for k, s in enumerate(stages) if s.kind == "leg")
+    v = np.asarray(samples.state.speed_mps)
+    at_corner = [np.flatnonzero(samples.label == leg)[-1],
+                 np.flatnonzero(samples.label == leg + 1)[0]]
+    assert np.all(v[at_corner] <= min(allowed, speed) + 2 * a * dt + 1e-9)

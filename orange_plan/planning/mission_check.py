@@ -83,6 +83,9 @@ DEFAULT_CLIMB_MPS = 2.5
 DEFAULT_DESCENT_MPS = 1.5
 """Default vertical descent speed of an aerial robot without ``robot.descent_mps`` [m/s]
 (ArduPilot's WPNAV_SPEED_DN default)."""
+AT_HOME_M = 1e-3
+"""A point this close to home (horizontally) is home: no way home to fly from it [m] (a
+waypoint read from latitude/longitude lands within round-off of it)."""
 VERTICAL_EPS_M = 1e-6
 """A stage whose horizontal length is below this is vertical [m]."""
 VERDICTS = ("fits", "fits_without_reserve", "does_not_fit")
@@ -297,7 +300,7 @@ def _stages(mission: Mission, robot: _Robot) -> list[_Stage]:
         waiting_s = 0.0
         here = end
     last = len(wps) - 1
-    if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > 0:
+    if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
         end = (*home, here[2])
         stages.append(_Stage("return", last, 0, here, end,
                              _leg_speed(robot, wps[last].speed_mps, here, end)))
@@ -633,7 +636,7 @@ def _ways_home(stages, mission, world, robot, conditions, step_m, model):
             continue  # the end of the mission: nothing left to fly
         here = st.end
         way = []
-        if math.hypot(here[0] - home[0], here[1] - home[1]) > 0:
+        if math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
             end = (*home, here[2])
             way.append(_Stage("return", st.to_wp, 0, here, end,
                               _leg_speed(robot, return_speed, here, end)))
