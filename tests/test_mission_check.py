@@ -507,3 +507,16 @@ def test_the_robot_turns_a_corner_at_most_at_the_arcs_speed(small, turn_deg, rad
     at_corner = [np.flatnonzero(samples.label == leg)[-1],
                  np.flatnonzero(samples.label == leg + 1)[0]]
     assert np.all(v[at_corner] <= min(allowed, speed) + 2 * a * dt + 1e-9)
+
+
+def test_a_mission_too_long_to_check_is_refused_before_the_work(tmp_path):
+    scenario = write_world(tmp_path, width_m=30.0, height_m=20.0)  # no origin: a local frame
+    line = tmp_path / "far.geojson"  # 10 degrees of latitude at 1.5 m/s: weeks of driving
+    line.write_text(json.dumps({"type": "LineString",
+                                "coordinates": [[11.5, 40.0], [11.5, 50.0]]}))
+    code, _, err = run_cli("check", line, "--scenario", scenario)
+    assert code == 2 and "samples" in err and len(err.strip().splitlines()) == 1
+    many = tmp_path / "many.csv"
+    many.write_text("x_m,y_m\n" + "".join(f"{i % 20},{i % 10}\n" for i in range(10_002)))
+    code, _, err = run_cli("check", many, "--scenario", scenario)
+    assert code == 2 and "10,002 rows, more than the 10,000" in err

@@ -46,6 +46,7 @@ from orange_plan.export.autopilot import (
     MissionItem,
     latlon_to_xy,
 )
+from orange_plan.limits import MAX_MISSION_WAYPOINTS
 from orange_plan.paths import csv_delimiter_hint, read_json, require_file
 
 NAV_LAND, NAV_LOITER_TIME = 21, 19
@@ -278,9 +279,17 @@ def _number(value, where: str) -> float:
         raise InputError(f"{where}: {value!r} is not a number") from None
 
 
+def _check_count(n: int, source: str, what: str) -> None:
+    """Refuse more than ``MAX_MISSION_WAYPOINTS`` items before building them."""
+    if n > MAX_MISSION_WAYPOINTS:
+        raise InputError(f"{source}: {n:,} {what}, more than the {MAX_MISSION_WAYPOINTS:,} "
+                         "waypoints a check takes")
+
+
 def mission_from_items(home, items, origin, source: str,
                        acceptance_radius_m: float = DEFAULT_ACCEPTANCE_RADIUS_M) -> Mission:
     """A Mission from MAVLink items (module docstring): ``home`` = (lat, lon, alt AMSL)."""
+    _check_count(len(items), source, "mission items")
     home_lat, home_lon, home_alt = home
     if not all(math.isfinite(v) for v in home) or abs(home_lat) > 90 or abs(home_lon) > 180:
         raise InputError(f"{source}: missing home: home position {tuple(home)} is not a valid "
@@ -387,6 +396,7 @@ def read_route_csv(path: Path) -> Mission:
     if missing:
         raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, z_m, "
                          "speed_mps, stay_s, corner_radius_m])" + csv_delimiter_hint(frame.columns))
+    _check_count(len(frame), str(path), "rows")
     try:
         cols = {c: frame[c].to_numpy(dtype=float) if c in frame else np.full(len(frame), np.nan)
                 for c in ROUTE_COLUMNS}
@@ -435,6 +445,7 @@ def read_geojson(path: Path, origin) -> Mission:
     if not isinstance(geom, dict) or geom.get("type") != "LineString":
         raise InputError(f"{path}: no LineString (a mission GeoJSON is a LineString in "
                          "longitude/latitude, or a plan with a tour)")
+    _check_count(len(geom.get("coordinates") or []), str(path), "positions")
     coords = _coords(geom, path)
     if coords.shape[1] < 2 or len(coords) < 2:
         raise InputError(f"{path}: the LineString needs at least two [lon, lat] positions")
@@ -467,6 +478,7 @@ def _plan_tour(tour: dict, path: Path) -> Mission:
     geom = tour.get("geometry") or {}
     if geom.get("type") != "LineString":
         raise InputError(f"{path}: the tour must be a LineString, got {geom.get('type')!r}")
+    _check_count(len(geom.get("coordinates") or []), str(path), "tour vertices")
     xy = _coords(geom, path)[:, :2]
     if len(xy) < 2 or not np.all(np.isfinite(xy)):
         raise InputError(f"{path}: the tour needs at least two finite (x, y) vertices")
