@@ -520,3 +520,15 @@ def test_a_mission_too_long_to_check_is_refused_before_the_work(tmp_path):
     many.write_text("x_m,y_m\n" + "".join(f"{i % 20},{i % 10}\n" for i in range(10_002)))
     code, _, err = run_cli("check", many, "--scenario", scenario)
     assert code == 2 and "10,002 rows, more than the 10,000" in err
+
+
+def test_a_leg_through_an_obstacle_is_warned_about(ground, tmp_path):
+    _, scenario, _, _ = ground
+    path = tmp_path / "through.csv"
+    path.write_text("x_m,y_m\n2,2\n28,8\n")  # the obstacle spans x 12..16, y 4..12
+    code, text, err = run_cli("check", path, "--scenario", scenario, "--json")
+    assert code == 0, err
+    assert json.loads(text)["warnings"] == [
+        "2 leg(s) leave the map's free space (an obstacle, a no-go zone or the boundary, "
+        "within the robot's keep-away): leg 0 -> 1, return 1 -> 0"]
+    assert "warning: 2 leg(s) leave" in err

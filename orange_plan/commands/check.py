@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, app, check_range, handles_errors, out, print_json
+from orange_plan.cli import JsonOpt, app, check_range, handles_errors, out, print_json, warn
 from orange_plan.errors import InputError
 
 MAX_WIND_MPS = 100.0
@@ -87,6 +87,8 @@ def check_cmd(
                    f"{ctx.scenario.name}: {mission.name}, {result.verdict.replace('_', ' ')}")
     report = {"mission": str(mission), "scenario": ctx.scenario.name,
               "in_map_frame": in_map, **result.as_dict()}
+    for line in result.warnings:
+        warn(line)
     if as_json:
         print_json(report)
         return

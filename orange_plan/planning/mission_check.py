@@ -177,6 +177,9 @@ class MissionCheck:
     reserve_rule: str
     start_margin_J: float = 0.0
     """Margin at home before the take-off (nothing used, nothing to fly home) [J]."""
+    warnings: tuple[str, ...] = ()
+    """Legs that leave the map's free space (through an obstacle, a no-go zone or out of the
+    boundary, within the robot's keep-away): the energy is that of the straight leg."""
 
     @property
     def margin_J(self) -> np.ndarray:
@@ -193,7 +196,7 @@ class MissionCheck:
             "verdict": self.verdict, "first_failing_waypoint": self.first_failing_waypoint,
             "point_of_no_return": None if pnr is None else {"waypoint": pnr[0],
                                                             "distance_m": pnr[1]},
-            "wind_xy_mps": list(self.wind_xy_mps),
+            "wind_xy_mps": list(self.wind_xy_mps), "warnings": list(self.warnings),
             "worst_wind": None if self.worst_wind is None else {
                 "from_deg": self.worst_wind[0], "energy_J": self.worst_wind[1]},
             "legs": [leg.as_dict() for leg in self.legs],
@@ -620,7 +623,27 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
         tuple(legs), total, float(np.sqrt(ctx.model.predictive_variance_J2(total_g, total))),
         float(duration.sum()), float(avail), total_reserve, verdict, failing,
         _point_of_no_return(legs, start_margin), conditions.wind_xy_mps, worst,
-        rule.describe(), start_margin)
+        rule.describe(), start_margin,
+        _leaving_free_space(stages, ctx.world) if in_map_frame else ())
+
+
+MAX_WARNED_LEGS = 5
+"""Legs named one by one in the warning about free space (the rest are counted)."""
+
+
+def _leaving_free_space(stages: list[_Stage], world) -> tuple[str, ...]:
+    """One warning naming the legs whose straight line leaves the map's free space."""
+    flat = [st for st in stages if not st.vertical]
+    if not flat:
+        return ()
+    free = world.segments_free([st.start[:2] for st in flat], [st.end[:2] for st in flat])
+    bad = [st for st, ok in zip(flat, free) if not ok]
+    if not bad:
+        return ()
+    named = ", ".join(f"{st.kind} {st.from_wp} -> {st.to_wp}" for st in bad[:MAX_WARNED_LEGS])
+    more = f" and {len(bad) - MAX_WARNED_LEGS} more" if len(bad) > MAX_WARNED_LEGS else ""
+    return (f"{len(bad)} leg(s) leave the map's free space (an obstacle, a no-go zone or the "
+            f"boundary, within the robot's keep-away): {named}{more}",)
 
 
 def _ways_home(stages, mission, world, robot, conditions, step_m, model):
