@@ -532,3 +532,24 @@ def test_a_leg_through_an_obstacle_is_warned_about(ground, tmp_path):
         "2 leg(s) leave the map's free space (an obstacle, a no-go zone or the boundary, "
         "within the robot's keep-away): leg 0 -> 1, return 1 -> 0"]
     assert "warning: 2 leg(s) leave" in err
+
+
+def test_a_space_separated_wpl_file_with_a_delay_condition(aerial, tmp_path):
+    """Some tools write QGC WPL 110 with spaces, not tabs; a CONDITION_DELAY (112) only
+    delays the next DO command and moves nothing."""
+    _, _, ctx, _ = aerial
+    lat, lon = latlon(2, 2)
+    far = latlon(25, 20)
+    text = ("QGC WPL 110\n"
+            f"0 1 0 16 0 0 0 0 {lat!r} {lon!r} {MUNICH.alt_m} 1\n"
+            f"1 0 3 22 0 0 0 0 {lat!r} {lon!r} 12 1\n"
+            "2 0 2 112 3 0 0 0 0 0 0 1\n"
+            f"3 0 3 16 2.5 0 0 0 {far[0]!r} {far[1]!r} 12 1\n"
+            "4 0 2 20 0 0 0 0 0 0 0 1\n")
+    path = tmp_path / "spaces.txt"
+    path.write_text(text)
+    mission = read_mission(path, ctx.world.map.origin)
+    assert mission.takeoff_alt_m == 12 and mission.returns_home
+    assert mission.waypoints[1].stay_s == 2.5
+    assert (mission.waypoints[1].x_m, mission.waypoints[1].y_m) == pytest.approx((25, 20),
+                                                                                 abs=1e-6)
