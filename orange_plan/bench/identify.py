@@ -31,7 +31,7 @@ import numpy as np
 from orange_plan.context import load_context
 from orange_plan.identify.calibrate import Calibrator
 from orange_plan.identify.online import OnlineEstimator, stream
-from orange_plan.model_builder import model_with_terms
+from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.physics.range import radial_probe_paths
 from orange_plan.planning.reserve import ConfidenceReserve

@@ -19,8 +19,8 @@ import pandas as pd
 from scipy.signal import lfilter
 
 from orange_plan.errors import InputError, close_match_hint
-from orange_plan.model_builder import with_payload
 from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.model_builder import with_payload
 from orange_plan.physics.pathcost import subdivide
 from orange_plan.physics.profile import (
     SAMPLE_DT_S,

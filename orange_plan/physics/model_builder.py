@@ -2,7 +2,7 @@
 values -> a prior covariance.
 
 Every EnergyModel made from a scenario goes through here: ``load_context`` and the service
-(``build_model``: the reference terms of SPEC §7 + ``[model]``), calibration and the online
+(``build_model``: the reference terms + ``[model]``), calibration and the online
 benchmarks (``model_with_terms``: another term list on top of a loaded model), and the
 calibrated-scenario writer (``physical_values``: the same table read backwards). So the
 ``calibrate -o`` round trip holds by construction: what is written is read by the same rows.
@@ -10,7 +10,8 @@ calibrated-scenario writer (``physical_values``: the same table read backwards).
 The table ``LUMPED`` holds, per lumped coefficient, the physical value it stands for and the
 factors between them: ``lumped = value * mul / div`` and ``physical = lumped * div / mul``
 (kept as a product and a quotient, not a folded factor, so the forward map gives the very
-floats ``(s0 + compute + comm) / (1 - eta_4)`` or ``m / Omega`` of SPEC §7).
+floats ``(s0 + compute + comm) / (1 - eta_4)`` or ``m / Omega`` of the term table in
+docs/guide/range.md).
 """
 
 from __future__ import annotations
@@ -166,11 +167,6 @@ def reference_value(name: str, scenario) -> float:
     """The a priori lumped value of coefficient ``name`` from the scenario's physical values
     (per-surface rolling coefficients start at ``rolling_kg``)."""
     return _row(name).lumped(scenario)
-
-
-def reference_coefficients(scenario) -> dict[str, float]:
-    """Every lumped coefficient's a priori value from a scenario's physical values."""
-    return {name: row.lumped(scenario) for name, row in LUMPED.items()}
 
 
 def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
