@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
-from orange_plan.paths import file_problem, require_file
+from orange_plan.files import file_problem, require_file
 from orange_plan.physics.battery import Battery, Losses
 from orange_plan.physics.terms import EXTRA_TERM_IDS, model_coefficient_names
 from orange_plan.physics.wind import wind_xy_mps

@@ -96,7 +96,7 @@ DEFAULT_PLAN_SCENARIOS = "kiwibot_campus,ar_drone_wind,marine_survey,husky_a200,
 
 def check_outputs(png: Path | None, out_file: Path | None) -> None:
     """A benchmark's --png and --out, checked before its minutes of work."""
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
 
     if png is not None:
         check_output(png, "--png", [".png"])

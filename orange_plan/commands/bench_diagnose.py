@@ -30,7 +30,7 @@ def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt 
     (issue #9 targets)."""
     from orange_plan.bench.diagnose import compare, summarise
     from orange_plan.errors import InputError
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.sim.concealed import concealed_suite
 
     try:

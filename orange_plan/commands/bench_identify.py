@@ -57,7 +57,7 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
         summarise_calibration,
     )
     from orange_plan.errors import InputError
-    from orange_plan.paths import require_folder
+    from orange_plan.files import require_folder
 
     names = _split(only) or list(CALIBRATION_CASES)
     unknown = [n for n in names if n not in CALIBRATION_CASES]
@@ -130,7 +130,7 @@ def online_cmd(scenarios: ScenariosOpt = None, seeds: SeedsOpt = 3,
 
     names = _split(only) or list(BENCH_TRUTHS)
     if png is not None:
-        from orange_plan.paths import check_output
+        from orange_plan.files import check_output
 
         check_output(png, "--png", [".png"])
     if seeds < 1:

@@ -23,7 +23,7 @@ def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
                 as_json: JsonOpt = False) -> None:
     """Import a robot log into a recording table (t_s, power_W, x_m, y_m, ...), checked and
     completed."""
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.importers import read_log
     from orange_plan.telemetry.recording import (

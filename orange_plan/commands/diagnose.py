@@ -40,9 +40,9 @@ def diagnose_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = N
     """Locate where a recording and the model disagree, name the missing physics, add it and
     show the fit improve."""
     from orange_plan.context import load_context
+    from orange_plan.files import check_output
     from orange_plan.identify.diagnose import diagnose
     from orange_plan.identify.scenario_out import write_calibrated_scenario
-    from orange_plan.paths import check_output
     from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.recording import load_recording
     from orange_plan.telemetry.replay import check_positions_on_map

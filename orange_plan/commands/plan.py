@@ -19,8 +19,8 @@ from orange_plan.cli import (
     print_json,
     warn,
 )
+from orange_plan.files import check_output
 from orange_plan.limits import MAX_ROADMAP_VERTICES, MIN_ROADMAP_VERTICES
-from orange_plan.paths import check_output
 from orange_plan.progress import stages, wanted
 
 

@@ -28,7 +28,7 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
                 as_json: JsonOpt = False) -> None:
     """Replay a recording's motion through the scenario's model: energy and power error."""
     from orange_plan.context import load_context
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.progress import stages, wanted
     from orange_plan.telemetry.recording import cumulative_J, load_recording
     from orange_plan.telemetry.replay import check_positions_on_map, replay_context

@@ -53,7 +53,7 @@ def reach_cmd(
     start = parse_xy(from_xy, "--from") if from_xy is not None else None
     goal_set = load_goals(goals) if goals is not None else None
     if png is not None:
-        from orange_plan.paths import check_output
+        from orange_plan.files import check_output
 
         check_output(png, "--png", [".png"], inputs=[scenario, goals])
     with stages(wanted(as_json)) as step:

@@ -11,7 +11,7 @@ from rich.table import Table
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
 from orange_plan.commands.bench_identify import DataOpt, ScenariosOpt, _scenarios
 from orange_plan.errors import InputError
-from orange_plan.paths import check_output, require_folder
+from orange_plan.files import check_output, require_folder
 from orange_plan.progress import bar, wanted
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports regenerated from one command.")

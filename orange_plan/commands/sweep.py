@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
-from orange_plan.paths import check_output
+from orange_plan.files import check_output
 from orange_plan.progress import bar, wanted
 
 

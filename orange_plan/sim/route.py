@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import InputError
-from orange_plan.paths import csv_delimiter_hint, read_json, require_file
+from orange_plan.files import csv_delimiter_hint, read_json, require_file
 
 PLAN_SUFFIXES = (".geojson", ".json")
 """File endings read as a plan GeoJSON; anything else is read as a route CSV."""

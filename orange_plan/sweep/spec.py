@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, close_match_hint
-from orange_plan.paths import file_problem
+from orange_plan.files import file_problem
 
 TOP_KEYS = ("name", "scenarios", "seeds", "truth", "vertices", "sample_rate_Hz", "grid")
 TRUTH_KINDS = ("calibration", "model")

@@ -94,7 +94,7 @@ import pandas as pd
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import RecordingError
-from orange_plan.paths import csv_delimiter_hint, require_file
+from orange_plan.files import csv_delimiter_hint, require_file
 from orange_plan.telemetry.derive import (
     STILL_SPEED_MPS,
     derivative,

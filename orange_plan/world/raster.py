@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import MapError
+from orange_plan.files import file_problem
 from orange_plan.limits import MAX_ELEVATION_CELLS
-from orange_plan.paths import file_problem
 
 
 @dataclass(frozen=True)
