@@ -66,13 +66,10 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError, OrangeError
-from orange_plan.sweep.flight import (
-    _Flown,
-    _fmt,
-    _simulate,
-    fly_open_loop,
-    stranding_upper_bound,
-)
+from orange_plan.sim.flight import Flown as _Flown
+from orange_plan.sim.flight import fly_open_loop, stranding_upper_bound
+from orange_plan.sim.flight import simulate_route as _simulate
+from orange_plan.sweep.report import cell as _fmt
 
 METHODS = ("session", "open_loop", "lawnmower", "lawnmower_energy", "oracle")
 """Method ids: (a), (b), (c), (e), (d)."""

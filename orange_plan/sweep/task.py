@@ -1,6 +1,6 @@
 """One sweep run on a worker: plan a tour, fly it in the simulator, score it (one row).
 
-The scoring is ``sweep.flight.fly_open_loop``'s (the first tour flown as planned): coverage is
+The scoring is ``sim.flight.fly_open_loop``'s (the first tour flown as planned): coverage is
 the sensed area up to the battery's exhaustion, a run is stranded when the true energy drawn
 exceeds the truth's usable energy before home or when it does not end home.
 """
@@ -62,7 +62,7 @@ def _plan_fly_score(run: RunSpec) -> dict:
     from orange_plan.context import context_of
     from orange_plan.planning.tour import plan_tour
     from orange_plan.scenario import scenario_from_dict
-    from orange_plan.sweep.flight import fly_open_loop
+    from orange_plan.sim.flight import fly_open_loop
 
     ctx = context_of(scenario_from_dict(run.scenario_data, Path(run.scenario_file)))
     truth = _truth(ctx, run)
