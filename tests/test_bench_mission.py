@@ -35,6 +35,9 @@ def test_quick_run_completes_with_every_column(tmp_path):
                                    "--png", png)
     assert code == 0, stderr
     result = json.loads(stdout)
+    from test_json_docs import compare
+
+    compare("bench mission", result)  # docs/json.md lists exactly these keys
     assert result["complete"] and result["missions"] == 3 == len(result["flights"])
     assert json.loads(out.read_text())["missions"] == 3
     assert png.stat().st_size > 10_000

@@ -134,6 +134,9 @@ def test_reduced_report_is_complete_and_in_range(tmp_path):
     assert "66-91 %" in stdout and "82.97 / 93.87 %" in stdout
     md = (out / "report.md").read_text()
     summary = json.loads((out / "report.json").read_text())
+    from test_json_docs import compare
+
+    compare("report paper", summary | {"out": str(out)})  # what --json prints
     for name in summary["files"]:
         assert (out / name).stat().st_size > 1000, name
         if name.endswith(".png"):
