@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from orange_plan.bench.identify import probe_route
 from orange_plan.context import load_context
+from orange_plan.sim.ranges import probe_route
 from orange_plan.sim.simulator import simulate
 from orange_plan.telemetry.importers import read_log
 from orange_plan.telemetry.recording import write_recording

@@ -12,13 +12,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from orange_plan.bench.identify import (
-    PREDICT_AT,
-    calibration_benchmark,
-    count_runs,
-)
+from orange_plan.bench.identify import calibration_benchmark, count_runs
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import stat
+from orange_plan.sim.ranges import PREDICT_AT
 
 DATASETS = ("husky_borealtc", "bmw_i3_tum")
 MODELS = {"a priori": "energy_error_prior_pct", "calibrated (held out)": "energy_error_pct",

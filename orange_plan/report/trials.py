@@ -1,6 +1,6 @@
 """What the report's experiments share: truth draws, runs to depletion, range estimates.
 
-Range estimation error (the paper's measure, ``bench.identify.accuracy_pct``)::
+Range estimation error (the paper's measure, ``sim.ranges.accuracy_pct``)::
 
     error_pct = 100 |d_est - d_true| / d_true,     accuracy_pct = 100 - error_pct
 
@@ -23,8 +23,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from orange_plan.bench.identify import accuracy_pct, offline_range_m
 from orange_plan.context import Context
+from orange_plan.sim.ranges import accuracy_pct, offline_range_m
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import SimResult, simulate
 from orange_plan.sim.truth import truth_from_dict
