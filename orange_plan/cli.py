@@ -1,4 +1,4 @@
-"""Command line: one command = parse, call one library function, print (SPEC §5).
+"""Command line: one command = parse, call one library function, print.
 
 Bad input: one line on stderr, exit code 2. Internal failure: one line, exit code 1.
 ``--json`` prints exactly one JSON object on stdout.

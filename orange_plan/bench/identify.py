@@ -72,7 +72,7 @@ class OnlineRow:
     ``accuracy_online_mean_pct`` averages the online accuracy over all ``PREDICT_AT``.
     ``energy_predicted_prior_J`` / ``_sd_J``: the a-priori model's whole-run energy along the
     recorded motion and its predictive standard deviation (``_param_sd_J``: its coefficient
-    covariance part alone, the reserve before issue #8); ``energy_recorded_J`` the run's.
+    covariance part alone, a reserve without the run-to-run discrepancy); ``energy_recorded_J`` the run's.
     """
 
     scenario: str
@@ -224,7 +224,7 @@ class CalibrationRow:
     (offline), with each prediction's predictive standard deviation (``_sd_J``: coefficient
     covariance plus run-to-run discrepancy, what a confidence reserve is sized from; the
     calibrated model's ``discrepancy_rel_sd`` is estimated on its training runs only;
-    ``_param_sd_J`` the coefficient covariance part alone, the reserve before issue #8), and
+    ``_param_sd_J`` the coefficient covariance part alone, a reserve without the run-to-run discrepancy), and
     online (``online_energy_errors``): ``online_error_pct`` at ``PREDICT_AT[0]`` of the run
     starting from the calibrated model, ``online_error_mean_abs_pct`` the mean |error| over
     ``PREDICT_AT``, and ``online_prior_error_pct`` at ``PREDICT_AT[0]`` starting from the

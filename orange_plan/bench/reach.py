@@ -1,6 +1,6 @@
 """Benchmark of the planning core (``orange-plan bench reach``): timings and path quality.
 
-Measures, on one scenario (default: the hilly campus example), the targets of issue #3:
+Measures, on one scenario (default: the hilly campus example), its targets:
 roadmap + weights + both fields at 5,000 vertices; 10,000 goal queries; point-to-point energy
 against a dense-grid Dijkstra reference on the same map and model; energy saved against the
 shortest path; speed-optimiser time at N = 50, 200, 1000. Timings are medians over repeats.

@@ -1,4 +1,4 @@
-"""Replanning speed: how long a mid-mission replan takes (issue #10 target: p95 <= 250 ms on
+"""Replanning speed: how long a mid-mission replan takes (target: p95 <= 250 ms on
 the hilly campus example).
 
 A cold plan is made from home (roadmap, candidates, leg matrices, search, exact check); then

@@ -1,4 +1,4 @@
-"""Load benchmark of the HTTP service (``orange-plan bench service``; issue #10 targets).
+"""Load benchmark of the HTTP service (``orange-plan bench service``; targets).
 
 One real server: ``python -m orange_plan.cli serve`` in a subprocess on 127.0.0.1, a free
 port, a temporary database (WAL, ``synchronous=FULL``: every answered batch is committed),

@@ -1,4 +1,4 @@
-"""Benchmarks of ``orange-plan sweep`` (issue #11 targets).
+"""Benchmarks of ``orange-plan sweep`` (targets).
 
 ``run_speedup_bench``: one fixed sweep (a shipped scenario, one run per seed) computed on a
 local Dask cluster of 1 and of 2 workers, alternately, ``repeats`` times. Each cluster is

@@ -27,7 +27,7 @@ def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt 
                        as_json: JsonOpt = False) -> None:
     """Concealed-effect cases: terms found, false positives, held-out RMSE and seconds of
     the diagnosis and of a LassoCV sparse regression over the same candidate features
-    (issue #9 targets)."""
+    (targets)."""
     from orange_plan.bench.diagnose import compare, summarise
     from orange_plan.errors import InputError
     from orange_plan.files import check_output

@@ -1,4 +1,4 @@
-"""``orange-plan bench calibration|online``: reproduce the issue #4 measurements.
+"""``orange-plan bench calibration|online``: offline vs online range and calibration on held-out recordings.
 
 The subcommands sit on the ``bench`` group of ``commands/bench.py`` (registered from here,
 so that file needs no edit).

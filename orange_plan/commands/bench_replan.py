@@ -1,4 +1,4 @@
-"""``orange-plan bench replan``: how fast a mid-mission replan is (issue #10 target)."""
+"""``orange-plan bench replan``: how fast a mid-mission replan is (target)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``orange-plan bench sweep``: Dask speed-up from 1 to 2 workers, and a killed sweep resumed
-(issue #11 targets)."""
+(targets)."""
 
 from __future__ import annotations
 

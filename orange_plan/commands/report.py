@@ -1,4 +1,4 @@
-"""``orange-plan report paper``: the ORangE paper's validation, regenerated (issue #12)."""
+"""``orange-plan report paper``: the ORangE paper's validation, regenerated."""
 
 from __future__ import annotations
 

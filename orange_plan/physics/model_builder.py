@@ -178,7 +178,7 @@ def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
 
 
 def reference_terms_by_physics(scenario) -> dict[str, bool]:
-    """Which reference terms the scenario's physical keys switch on (SPEC §7), in model order."""
+    """Which reference terms the scenario's physical keys switch on, in model order."""
     robot, anc = scenario.robot, scenario.ancillary
     return {
         "ancillary": True,
@@ -205,7 +205,7 @@ def reference_term_ids(scenario) -> list[str]:
 
 
 def make_term(term_id: str, surface_names: Sequence[str]) -> Term:
-    """The term of vocabulary id ``term_id`` (SPEC §6); ``surface_rolling`` is built for the
+    """The term of vocabulary id ``term_id``; ``surface_rolling`` is built for the
     given surfaces.
 
     Raises
@@ -271,7 +271,7 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
 
 
 def model_with_terms(ctx, terms: Sequence[str] | None, surface_names=None) -> EnergyModel:
-    """The context's model, or one with exactly ``terms`` (vocabulary ids, SPEC §6) in order.
+    """The context's model, or one with exactly ``terms`` (vocabulary ids: docs/guide/range.md) in order.
 
     Coefficients keep the context model's values and (co)variances; new ones start at the
     scenario's reference values with ``prior_variance`` (zero value: no prior).

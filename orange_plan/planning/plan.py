@@ -21,12 +21,12 @@ from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError
 
 VERTEX_ARRAYS = ("t_s", "speed_mps", "energy_used_J", "energy_to_home_J", "margin_J")
-"""SPEC §4 per-vertex properties of the tour LineString (same length as its coordinates)."""
+"""Per-vertex properties of the tour LineString (same length as its coordinates)."""
 
 SUMMARY_KEYS = ("energy_available_J", "energy_planned_J", "reserve_J", "coverage_m2",
                 "coverage_fraction", "coverage_bound_m2", "duration_s", "return_probability",
                 "planner_seconds")
-"""SPEC §4 keys of the plan's top-level ``summary``."""
+"""Keys of the plan's top-level ``summary``."""
 
 
 @dataclass(frozen=True)

@@ -135,7 +135,7 @@ def with_belief(ctx: Context, model=None, energy_factor: float = 1.0,
     energy times ``energy_factor`` (a measured state of health), ``extra_cycles`` more charge
     cycles on the battery (its nominal fade, Eq. 3, applies to them).
 
-    The usable energy is linear in ``rated_energy_Wh`` (SPEC §7), so the factor goes there.
+    The usable energy is linear in ``rated_energy_Wh``, so the factor goes there.
     """
     battery = ctx.scenario.battery
     battery = replace(battery, rated_energy_Wh=battery.rated_energy_Wh * energy_factor,

@@ -58,7 +58,7 @@ class MissionUnavailable(OrangeError):
 
 def plan_first(library: ScenarioLibrary, source: ScenarioSource, n_vertices: int, seed: int,
                sessions) -> dict:
-    """In a planning worker: a new mission's first plan (SPEC §4 GeoJSON)."""
+    """In a planning worker: a new mission's first plan (plan GeoJSON (docs/formats.md))."""
     session = sessions.new(library.context(source), n_vertices=n_vertices, seed=seed)
     return session.plan.to_geojson()
 

@@ -1,4 +1,4 @@
-"""Routes to drive: a plan GeoJSON's tour (SPEC §4) or a CSV of x_m, y_m[, speed_mps] waypoints."""
+"""Routes to drive: a plan GeoJSON's tour or a CSV of x_m, y_m[, speed_mps] waypoints."""
 
 from __future__ import annotations
 

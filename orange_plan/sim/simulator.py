@@ -1,4 +1,4 @@
-"""Mission simulator: drive a route under a truth model and produce a recording (SPEC §3).
+"""Mission simulator: drive a route under a truth model and produce a recording.
 
 The power at every sample is the scenario model's own ``EnergyModel.power_W`` evaluated on
 the simulated motion state (no physics is re-typed here). The simulator adds only the
@@ -49,7 +49,7 @@ class SimResult:
 
     Attributes
     ----------
-    frame : the recording (SPEC §3 columns)
+    frame : the recording (recording columns (docs/formats.md))
     energy_J : true battery energy drawn (without recording noise) [J]
     energy_available_J : the truth's usable energy (scenario E_avail x capacity_factor) [J]
     distance_m : distance travelled along the path [m]

@@ -1,4 +1,4 @@
-"""Map GeoJSON (SPEC §1) -> a validated, frozen Map."""
+"""Map GeoJSON -> a validated, frozen Map."""
 
 from __future__ import annotations
 

@@ -39,7 +39,7 @@ class ElevationRaster:
     def elevation_at(self, x_m, y_m) -> np.ndarray:
         """Bilinear elevation between cell centres, constant over the outer half cell [m].
 
-        Accepts arrays of any (broadcastable) shape and returns that shape (SPEC §7).
+        Accepts arrays of any (broadcastable) shape and returns that shape.
         """
         x, y = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
         rows, cols = self.z_m.shape
