@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.atomic import save_figure
 from orange_plan.context import load_context
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
@@ -128,8 +129,6 @@ def plot(rows: list[dict], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     summary = cells(rows)
     fig, ax = plt.subplots(figsize=(7, 4.8))

@@ -44,6 +44,7 @@ from orange_plan.service.missions import (
 from orange_plan.service.scenarios import ScenarioLibrary
 from orange_plan.service.store import Store
 from orange_plan.service.worker import PlannerBusy, PlannerFailed, Planners
+from orange_plan.telemetry.recording import NUMERIC_COLUMNS, TEXT_COLUMNS
 
 TOKEN_ENV = "ORANGE_PLAN_TOKEN"
 STATIC = Path(str(resources.files("orange_plan.service") / "static"))
@@ -364,7 +365,6 @@ not in a local metric frame); NaN passes here and the session reports it."""
 
 def check_samples(samples: list[dict]) -> None:
     """Types of the recording columns (docs/formats.md); deeper checks (order, gaps) are the session's."""
-    from orange_plan.telemetry.recording import NUMERIC_COLUMNS, TEXT_COLUMNS
 
     for i, sample in enumerate(samples):
         if "t_s" not in sample:

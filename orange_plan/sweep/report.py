@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from orange_plan.atomic import save_figure
 from orange_plan.sim.flight import stranding_upper_bound
 
 
@@ -95,8 +96,6 @@ def sweep_figure(summary: list[dict], grid_keys, title: str, path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     x = x_key(summary, grid_keys)
     others = [k for k in ("scenario", *grid_keys) if k != x]

@@ -14,7 +14,13 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from orange_plan.context import context_of
 from orange_plan.errors import InputError, OrangeError
+from orange_plan.planning.tour import plan_tour
+from orange_plan.scenario import scenario_from_dict
+from orange_plan.sim.flight import fly_open_loop
+from orange_plan.sim.perturb import calibration_truths
+from orange_plan.sim.truth import Truth, truth_from_dict
 from orange_plan.sweep.spec import RunSpec
 
 RESULT_COLUMNS = ("coverage_m2", "planned_coverage_m2", "energy_available_J",
@@ -59,11 +65,6 @@ def _cell(value):
 
 
 def _plan_fly_score(run: RunSpec) -> dict:
-    from orange_plan.context import context_of
-    from orange_plan.planning.tour import plan_tour
-    from orange_plan.scenario import scenario_from_dict
-    from orange_plan.sim.flight import fly_open_loop
-
     ctx = context_of(scenario_from_dict(run.scenario_data, Path(run.scenario_file)))
     truth = _truth(ctx, run)
     usable_J = ctx.scenario.battery.usable_J * truth.capacity_factor
@@ -87,9 +88,6 @@ def _plan_fly_score(run: RunSpec) -> dict:
 
 
 def _truth(ctx, run: RunSpec):
-    from orange_plan.sim.perturb import calibration_truths
-    from orange_plan.sim.truth import Truth, truth_from_dict
-
     if run.truth == "calibration":
         return calibration_truths(ctx, 1, seed=run.seed)[0]
     if run.truth == "model":
