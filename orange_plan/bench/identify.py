@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orange_plan.context import load_context
+from orange_plan.context import Context, load_context
 from orange_plan.identify.calibrate import Calibrator
 from orange_plan.identify.online import OnlineEstimator, stream
 from orange_plan.physics.model_builder import model_with_terms
@@ -117,7 +117,7 @@ class OnlineTrace:
     prior: object
 
 
-def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
+def online_trace(ctx: Context, truth_dict: dict, seed: int, until_fraction: float = 1.0,
                  memory_s: float = 600.0, window_s: float = 600.0):
     """Simulate one run to depletion and stream it through the online estimator.
 
@@ -139,7 +139,7 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     return trace, history, sim, route
 
 
-def online_run(ctx, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
+def online_run(ctx: Context, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
                memory_s: float = 600.0, window_s: float = 600.0) -> OnlineRow:
     """Simulate one run to depletion and compare offline and online range estimates."""
     trace, history, sim, route = online_trace(ctx, truth_dict, seed, max(predict_at),

@@ -20,6 +20,7 @@ answers are conservative).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -39,6 +40,9 @@ from orange_plan.planning.roadmap import (
     energy_field,
 )
 from orange_plan.world.rasters import TerrainRasters, build_rasters
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 K_NEAREST = 12
 """Roadmap vertices a goal is joined to (the best collision-free one is used)."""
@@ -136,7 +140,7 @@ class Reachability:
         return tuple(float(v) for v in self.roadmap.xy_m[self.start_index])
 
 
-def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
+def cost_contexts(ctx: Context, terrain: TerrainRasters, speed_mps: float | None = None,
                   with_gradient: bool | None = None):
     """(fast, exact) edge-cost contexts of a scenario at the cruise speed.
 
@@ -178,7 +182,7 @@ def check_start_free(world, xy) -> None:
                               "boundary or inside an obstacle / no-go zone")
 
 
-def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
+def prepare_reach(ctx: Context, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
                   seed: int = 0, speed_mps: float | None = None,
                   terrain: TerrainRasters | None = None,
                   with_gradient: bool | None = None, time_used_s: float = 0.0) -> Reachability:

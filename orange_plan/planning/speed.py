@@ -21,6 +21,7 @@ same N only re-solves, warm-started from the previous speeds (notes §7).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import Steps, path_energy, subdivide
 from orange_plan.physics.state import MotionState
 from orange_plan.planning.paths import dedupe
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 TIGHTEN_ROUNDS = 4
 """Re-solves allowed to bring the driven profile within a time limit or energy budget."""
@@ -313,7 +317,7 @@ def _piece_caps(problem: SpeedProblem) -> np.ndarray:
     return np.clip(cap, problem.v_min_mps, problem.v_max_mps)
 
 
-def speed_problem(ctx, pieces: PathPieces, objective: str = "energy",
+def speed_problem(ctx: Context, pieces: PathPieces, objective: str = "energy",
                   time_limit_s: float | None = None,
                   energy_budget_J: float | None = None) -> SpeedProblem:
     """The speed problem of a scenario's robot on ``pieces`` (limits from the scenario)."""

@@ -14,6 +14,7 @@ the robot is home, or when it does not end within ``HOME_TOLERANCE_M`` of home.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
@@ -21,6 +22,9 @@ import shapely
 from orange_plan.planning.coverage import footprint
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import SimResult, simulate
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 HOME_TOLERANCE_M = 1.0
 """A flight whose last position is farther than this from home did not get home [m]."""
@@ -61,7 +65,7 @@ class Flown:
         self.xy.append(frame[["x_m", "y_m"]].to_numpy(float)[:n])
         self.power.append(frame["power_W"].to_numpy(float)[:n])
 
-    def outcome(self, ctx) -> dict:
+    def outcome(self, ctx: Context) -> dict:
         """The flight's score: ``coverage_m2`` sensed until the battery ran out (or the end),
         ``energy_left_J``, ``stranded`` (out of energy, or ended farther than
         ``HOME_TOLERANCE_M`` from home), ``duration_s``, ``replans``, ``returned_early``,
@@ -79,7 +83,7 @@ class Flown:
                 "note": self.note}
 
 
-def simulate_route(ctx, xy, speed, truth, seed, rate,
+def simulate_route(ctx: Context, xy, speed, truth, seed, rate,
                    energy_start_J: float = 0.0) -> SimResult:
     """Fly the route ``xy`` [m] at per-vertex ``speed`` [m/s] under ``truth`` (None: the
     scenario's own model), sampled at ``rate`` [Hz], from ``energy_start_J`` already drawn."""
@@ -88,7 +92,7 @@ def simulate_route(ctx, xy, speed, truth, seed, rate,
                     energy_start_J=max(float(energy_start_J), 0.0))
 
 
-def fly_open_loop(ctx, plan, truth, seed: int, rate: float) -> dict:
+def fly_open_loop(ctx: Context, plan, truth, seed: int, rate: float) -> dict:
     """(b) and (d): the tour flown as planned."""
     sim = simulate_route(ctx, plan.xy_m, plan.speed_mps, truth, seed, rate)
     flown = Flown(1.0 / rate, [], [], sim.energy_available_J)

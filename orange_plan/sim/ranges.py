@@ -12,11 +12,16 @@ estimate on it and the accuracy measure that ``bench online`` and ``report paper
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.physics.range import radial_probe_paths
 from orange_plan.sim.route import Route
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 N_RAYS = 8
 """Headings of the probe route's out-and-back rays."""
@@ -31,7 +36,7 @@ def accuracy_pct(d_pred: float, d_true: float) -> float:
     return 100.0 * (1.0 - abs(d_pred - d_true) / d_true)
 
 
-def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None) -> Route:
+def probe_route(ctx: Context, n_rays: int = N_RAYS, max_ray_m: float | None = None) -> Route:
     """The a priori route: out-and-back rays from home joined into one closed polyline, each
     ray cut at ``max_ray_m`` from home (no speeds: NaN)."""
     rays = radial_probe_paths(ctx.world, n_rays)
@@ -45,7 +50,7 @@ def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None) -> Ro
     return Route(xy, np.full(len(xy), np.nan), "probe rays")
 
 
-def offline_range_m(ctx, route: Route) -> float:
+def offline_range_m(ctx: Context, route: Route) -> float:
     """Generalised offline range (Eq. 11) with the path integral taken on ``route`` [m]."""
     speed = route.speed_mps[:-1]
     e = path_energy(ctx.model, ctx.world, route.xy_m, speed, ctx.conditions)
@@ -53,7 +58,7 @@ def offline_range_m(ctx, route: Route) -> float:
     return ctx.scenario.battery.usable_J / (e.total_J / length)
 
 
-def lap_route(ctx) -> Route:
+def lap_route(ctx: Context) -> Route:
     """The probe route at the scenario's v_opt, rays cut so a lap is <= ``LAP_FRACTION`` of
     the offline range (a long field would otherwise never complete one lap)."""
     speed = ctx.cruise_speed_mps

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -34,6 +35,9 @@ from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
 from orange_plan.telemetry.derive import duration_s
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 MAX_RATE_HZ = 1000.0
 """Highest recording rate: beyond it a long run's table no longer fits in memory (1e5 Hz
@@ -113,7 +117,7 @@ def _roughness(rng, length_m: float, std: float, corr_m: float):
     return grid, lfilter([1.0], [1.0, -phi], noise)
 
 
-def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
+def simulate(ctx: Context, route: Route, truth: Truth | None = None, seed: int = 0,
              sample_rate_Hz: float = 1.0 / SAMPLE_DT_S, to_depletion: bool = False,
              max_duration_s: float = 172_800.0, energy_start_J: float = 0.0) -> SimResult:
     """Drive ``route`` in the scenario's world under ``truth`` and record it.

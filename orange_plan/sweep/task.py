@@ -14,7 +14,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from orange_plan.context import context_of
+from orange_plan.context import Context, context_of
 from orange_plan.errors import InputError, OrangeError
 from orange_plan.planning.tour import plan_tour
 from orange_plan.scenario import scenario_from_dict
@@ -87,7 +87,7 @@ def _plan_fly_score(run: RunSpec) -> dict:
             "plan_s": t1 - t0, "fly_s": time.perf_counter() - t1}
 
 
-def _truth(ctx, run: RunSpec):
+def _truth(ctx: Context, run: RunSpec):
     if run.truth == "calibration":
         return calibration_truths(ctx, 1, seed=run.seed)[0]
     if run.truth == "model":
