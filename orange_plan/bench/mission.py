@@ -600,21 +600,6 @@ def mission_table(result: dict):
     return t
 
 
-def markdown_table(result: dict) -> str:
-    """The README table (Markdown)."""
-    lines = ["| truths | method | missions | stranded | p95 stranding | left at home kJ | "
-             "coverage m2 | coverage / oracle (per-mission median) | replans |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in table_rows(result):
-        lines.append(
-            f"| {r['family']} | {METHOD_LABELS[r['method']]} | {r['missions']} | "
-            f"{r['strandings']} | {_fmt(r['stranding_upper95'], '.2%')} | "
-            f"{_fmt(r['energy_left_at_home_kJ'], '.2f')} | {_fmt(r['coverage_m2'], ',.0f')} | "
-            f"{_fmt(r['coverage_over_oracle'], '.2f')} "
-            f"({_fmt(r['coverage_over_oracle_median'], '.2f')}) | {_fmt(r['replans'], '.0f')} |")
-    return "\n".join(lines)
-
-
 def mission_figure(result: dict, path) -> Path:
     """PNG of ``mission_plot`` (written atomically)."""
     from orange_plan.atomic import save_figure
