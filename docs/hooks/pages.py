@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 from pathlib import Path
 
 from mkdocs.structure.files import File
@@ -16,6 +17,8 @@ from mkdocs.structure.files import File
 PAGE = "reference/cli.md"
 WIDTH = 100
 ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:  # the package of this checkout, installed or not
+    sys.path.insert(0, str(ROOT))
 
 
 def _commands(group, path=()):
