@@ -1,4 +1,4 @@
-"""Command line: one command = parse, call one library function, print (SPEC §5).
+"""Command line: one command = parse, call one library function, print.
 
 Bad input: one line on stderr, exit code 2. Internal failure: one line, exit code 1.
 ``--json`` prints exactly one JSON object on stdout.
@@ -26,6 +26,7 @@ except ImportError:  # pragma: no cover - older typer runs on click itself
     from click import exceptions as click_exc
     from click.globals import get_current_context
 
+from orange_plan import progress
 from orange_plan.errors import InputError, NamedInputError, OrangeError, plain_message
 
 
@@ -142,6 +143,14 @@ PIPED_MAX_WIDTH = 1000
 
 out = WholeWhenPiped()
 err = WholeWhenPiped(stderr=True)
+
+
+
+def progress_console(as_json: bool) -> Console | None:
+    """The console a command's progress display draws on: stderr when it is a terminal and
+    no ``--json`` was asked for, else None (no display)."""
+    return err if progress.wanted(as_json) else None
+
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
 SCENARIO_HELP = ("Scenario TOML file (robot, losses, battery, ancillary, mission, environment; "

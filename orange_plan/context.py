@@ -6,9 +6,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from orange_plan.errors import OrangeError
-from orange_plan.model_builder import build_model
 from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.model_builder import build_model
 from orange_plan.scenario import Scenario, load_scenario
 from orange_plan.world.terrain import World
 

@@ -1,6 +1,6 @@
 """Mission rules every planner applies to its answers (one place, so they all agree).
 
-The time limit (SPEC §2 ``mission.time_limit_s``): an answer whose planned mission time
+The time limit (``mission.time_limit_s``): an answer whose planned mission time
 exceeds it is not feasible, whatever its energy. ``check_time_limit`` decides it and words the
 reason; ``range``, ``reach``, the speed optimiser (and the tour planner) call it with their
 planned mission time: stops included, and the driven speed profile's where they have one

@@ -1,4 +1,4 @@
-"""Scenario TOML (SPEC §2) -> frozen dataclasses, validated with close-match hints."""
+"""Scenario TOML -> frozen dataclasses, validated with close-match hints."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, ScenarioError, close_match_hint
-from orange_plan.paths import file_problem, require_file
+from orange_plan.files import file_problem, require_file
 from orange_plan.physics.battery import Battery, Losses
 from orange_plan.physics.terms import EXTRA_TERM_IDS, model_coefficient_names
 from orange_plan.physics.wind import wind_xy_mps
@@ -118,7 +118,7 @@ energy [-], for a model not calibrated on several runs. Measured on the real rec
 
 @dataclass(frozen=True)
 class Robot:
-    """[robot]: the platform. Units in the names; see SPEC §2."""
+    """[robot]: the platform. Units in the names; see docs/formats.md."""
 
     kind: str
     mass_kg: float
@@ -186,7 +186,7 @@ class Environment:
 
     @property
     def wind_xy_mps(self) -> tuple[float, float]:
-        """Wind vector (x east, y north) from the meteorological direction [m/s] (SPEC §7)."""
+        """Wind vector (x east, y north) from the meteorological direction [m/s]."""
         return wind_xy_mps(self.wind_speed_mps, self.wind_from_deg)
 
 
@@ -203,7 +203,7 @@ class ModelSpec:
 
 @dataclass(frozen=True)
 class Scenario:
-    """One robot, one battery, one map, one mission (SPEC §2)."""
+    """One robot, one battery, one map, one mission."""
 
     name: str
     path: Path
@@ -229,7 +229,7 @@ class Scenario:
 
     @property
     def ancillary_power_W(self) -> float:
-        """Battery-side ancillary power P_anc [W] (SPEC §7)."""
+        """Battery-side ancillary power P_anc [W]."""
         return self.ancillary.load_W / (1.0 - self.losses.ancillary) + self.robot.hover_W
 
 

@@ -131,3 +131,34 @@ def run_cli(*args: str):
     _register_commands()
     result = CliRunner().invoke(app, [str(a) for a in args])
     return result.exit_code, result.stdout, result.stderr
+
+
+DATA = REPO.parent / "shared" / "data"
+"""The real recordings (BorealTC, TUM BMW i3) the data tests read; absent on a fresh clone."""
+DATA_SKIP = ("shared/data", "real data")
+"""Words of a skip reason that mean "the real recordings are not here"."""
+
+
+def data_skips(terminalreporter) -> list[tuple[str, str]]:
+    """(test id, reason) of every test skipped for want of the real recordings."""
+    out = []
+    for report in terminalreporter.stats.get("skipped", []):
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        if any(word in reason for word in DATA_SKIP):
+            out.append((report.nodeid, reason.removeprefix("Skipped: ")))
+    return out
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """Say loudly which data tests did not run and why: a run without ../shared/data passes
+    with those tests skipped, and a green run must not hide that."""
+    skipped = data_skips(terminalreporter)
+    if not skipped:
+        return
+    terminalreporter.write_sep("=", f"{len(skipped)} real-data tests SKIPPED", yellow=True,
+                               bold=True)
+    terminalreporter.write_line(f"the real recordings were not found at {DATA} "
+                                "(a folder beside the repository: shared/data/borealtc, "
+                                "shared/data/tum_bmw_i3); these tests did not run:")
+    for nodeid, reason in sorted(skipped):
+        terminalreporter.write_line(f"  {nodeid}: {reason}")

@@ -122,12 +122,11 @@ def test_convert_shows_progress_on_a_terminal_only(tmp_path, monkeypatch):
     assert code == 0 and screen.getvalue().strip("\x00") == ""
 
 
-def test_progress_bar_counts_items(monkeypatch):
+def test_progress_bar_counts_items():
     from orange_plan.progress import bar
 
     screen = io.StringIO()
-    monkeypatch.setattr(cli, "err", Console(file=screen, force_terminal=True, width=100))
-    with bar(2, "simulating", True) as tick:
+    with bar(2, "simulating", Console(file=screen, force_terminal=True, width=100)) as tick:
         tick()
         tick()
     assert "simulating" in screen.getvalue() and "2/2" in screen.getvalue()

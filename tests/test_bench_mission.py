@@ -35,6 +35,9 @@ def test_quick_run_completes_with_every_column(tmp_path):
                                    "--png", png)
     assert code == 0, stderr
     result = json.loads(stdout)
+    from test_json_docs import compare
+
+    compare("bench mission", result)  # docs/json.md lists exactly these keys
     assert result["complete"] and result["missions"] == 3 == len(result["flights"])
     assert json.loads(out.read_text())["missions"] == 3
     assert png.stat().st_size > 10_000
@@ -143,3 +146,30 @@ def test_mission_figure_labels_apart_and_axis_to_the_data(strandings):
         assert all(b.x0 >= ax.bbox.x0 - 1 and b.x1 <= ax.bbox.x1 + 1 for b in boxes)
     finally:
         plt.close(fig)
+
+
+def test_map_kits_kept_are_bounded_least_recently_used_first(monkeypatch):
+    from orange_plan.bench import mission
+
+    monkeypatch.setattr(mission, "_KITS", mission.OrderedDict())
+    made = []
+
+    def kit(key):
+        return mission._remember(key, lambda: made.append(key) or key, kept=2)
+
+    for key in ("a", "b", "a", "c", "a", "b"):
+        kit(key)
+    assert made == ["a", "b", "c", "b"]  # "b" was the least recently used when "c" came
+    assert list(mission._KITS) == ["a", "b"]
+
+
+def test_the_generated_worlds_folder_goes_with_its_process():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    probe = "from orange_plan.bench.mission import _folder\nprint(_folder())"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True, timeout=120)
+    folder = Path(out.stdout.strip())
+    assert folder.name.startswith("orange-bench-mission-") and not folder.exists()

@@ -186,6 +186,9 @@ def test_cli_quick_json_with_a_standin_planner(tmp_path):
                                    "--out", out, "--png", tmp_path / "fig.png")
     assert code == 0, stderr
     data = json.loads(stdout)
+    from test_json_docs import compare
+
+    compare("bench plan", data)  # docs/json.md lists exactly these keys
     assert data["complete"] and [r["method"] for r in data["rows"]] == list(METHODS)
     assert all(r["scenario"] == "random" and r["flights"] == 1 for r in data["rows"])
     assert json.loads(out.read_text())["rows"] == data["rows"]

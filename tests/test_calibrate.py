@@ -23,7 +23,7 @@ from orange_plan.identify.calibrate import (
     recording_samples,
 )
 from orange_plan.identify.scenario_out import write_calibrated_scenario
-from orange_plan.model_builder import model_with_terms, physical_values
+from orange_plan.physics.model_builder import model_with_terms, physical_values
 from orange_plan.physics.state import MotionState
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from orange_plan.context import load_context
 from orange_plan.identify.calibrate import Calibrator, Samples
-from orange_plan.model_builder import model_with_terms
+from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.physics.state import MotionState
 from orange_plan.telemetry.importers import read_log
 from orange_plan.telemetry.recording import write_recording

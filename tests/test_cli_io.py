@@ -11,7 +11,7 @@ from conftest import REPO, run_cli, write_scenario
 from logbuilders import write_ulog
 
 from orange_plan.errors import InputError
-from orange_plan.paths import check_output, csv_delimiter_hint, require_file
+from orange_plan.files import check_output, csv_delimiter_hint, require_file
 
 ROUTE = "x_m,y_m\n1,1\n18,1\n18,4\n1,4\n1,1\n"
 
@@ -142,7 +142,7 @@ def test_a_folder_given_as_a_file_says_so(tmp_path, which):
 
 
 def test_calibrate_writes_into_a_new_folder_like_every_other_writer(tmp_path):
-    from orange_plan.paths import check_output  # the up-front check allows a new folder
+    from orange_plan.files import check_output  # the up-front check allows a new folder
 
     scenario = write_scenario(tmp_path)
     rec = tmp_path / "rec.csv"

@@ -128,6 +128,9 @@ def test_bench_calibration_reports_offline_and_online_on_real_runs(tmp_path):
                               "husky_borealtc", "--json")
     assert code == 0
     report = json.loads(stdout)
+    from test_json_docs import compare
+
+    compare("bench calibration", report)  # docs/json.md lists exactly these keys
     (summary,) = report["summary"]
     assert summary["held_out_runs"] == 4 and len(report["runs"]) == 4
     for key in ("mean_abs_error_pct", "online_mean_abs_error_pct",

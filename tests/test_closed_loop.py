@@ -95,7 +95,7 @@ def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
     from scipy.special import ndtri
 
     from orange_plan.planning.session import MissionSession
-    from orange_plan.sweep.flight import _simulate
+    from orange_plan.sim.flight import simulate_route as _simulate
 
     spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
     kit = map_kit(spec)

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.examples import examples_dir
-from orange_plan.model_builder import model_with_terms
+from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.physics.wind import wind_xy_mps
 from orange_plan.sim.concealed import (
     CONCEALABLE,

@@ -126,7 +126,7 @@ def test_the_ambient_temperature_reaches_planned_and_driven_states(flat):
     """A temperature-dependent term (HVAC on the ambient temperature, diagnosed) charges
     planned paths at the scenario's ambient temperature, as it charges a recording at its
     column: path energy and the driven profile agree on it."""
-    from orange_plan.model_builder import model_with_terms
+    from orange_plan.physics.model_builder import model_with_terms
 
     model = model_with_terms(flat, [*flat.model.term_ids, "hvac_ambient"]).with_theta(
         {"hvac_heat_W_per_K": 10.0})

@@ -17,7 +17,7 @@ from scipy.signal import lfilter
 from orange_plan.context import load_context
 from orange_plan.identify.diagnose import _solve, diagnose
 from orange_plan.identify.locate import quarters
-from orange_plan.model_builder import model_with_terms
+from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import Truth

@@ -1,5 +1,6 @@
-"""Issue #13 item 9: what a user of the package reads (README, docs/, --help) is
-self-contained: no citation of SPEC sections or DESIGN.md, which users never have."""
+"""What a user of the package reads (README, docs/, --help) is self-contained: no citation of
+SPEC sections or DESIGN.md, which users never have, and no words of how it was built (issue
+numbers, "this stop", commit hashes) that a user cannot place."""
 
 from __future__ import annotations
 
@@ -24,10 +25,23 @@ def test_help_cites_no_spec_section(command):
     assert not CITATION.search(stdout), CITATION.search(stdout)
 
 
-@pytest.mark.parametrize("name", ["README.md", "docs/formats.md", "docs/json.md"])
+PROCESS_WORDS = re.compile(r"this stop|stops before|issue #|before this change|these changes"
+                           r"|on commit [0-9a-f]{7}|as the project grows", re.IGNORECASE)
+USER_DOCUMENTS = sorted({"README.md", "CHANGELOG.md",
+                         *(str(p.relative_to(REPO)) for p in (REPO / "docs").rglob("*.md"))})
+README_MAX_LINES = 200
+
+
+@pytest.mark.parametrize("name", USER_DOCUMENTS)
 def test_user_documents_cite_no_spec_section(name):
     text = (REPO / name).read_text(encoding="utf-8")
     assert not CITATION.search(text)
+    assert not PROCESS_WORDS.search(text), PROCESS_WORDS.search(text)
+
+
+def test_readme_is_a_front_page():
+    lines = (REPO / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES
 
 
 def test_readme_opens_with_the_quick_start_and_links_the_docs():

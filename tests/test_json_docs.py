@@ -127,3 +127,49 @@ COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibra
 @pytest.mark.parametrize("command", COMMANDS)
 def test_docs_list_exactly_the_printed_keys(outputs, command):
     compare(command, outputs[command])
+
+
+COVERED_ELSEWHERE = {
+    "bench plan": "test_bench_plan.py::test_cli_quick_json_with_a_standin_planner",
+    "bench mission": "test_bench_mission.py::test_quick_run_completes_with_every_column",
+    "bench sweep": "test_sweep.py::test_bench_sweep_small_run_meets_its_own_bookkeeping",
+    "bench calibration": ("test_cli_simulate.py::"
+                          "test_bench_calibration_reports_offline_and_online_on_real_runs"),
+    "report paper": "test_report.py::test_reduced_report_is_complete_and_in_range",
+}
+"""Commands whose ``--json`` is costly to produce: the test that already runs each compares
+its output with docs/json.md (``compare``) instead of running it again here."""
+
+
+def cli_commands() -> dict[str, bool]:
+    """Every command of the CLI (``"bench reach"``) -> whether it takes ``--json``."""
+    import typer
+
+    from orange_plan.cli import _register_commands, app
+
+    _register_commands()
+
+    def walk(command, path):
+        subs = getattr(command, "commands", None)
+        if subs is None:
+            yield " ".join(path), any("--json" in getattr(p, "opts", ()) for p in command.params)
+        for name, sub in (subs or {}).items():
+            yield from walk(sub, (*path, name))
+
+    return dict(walk(typer.main.get_command(app), ()))
+
+
+def test_every_json_command_is_documented_and_checked():
+    """A new command with ``--json`` needs its keys in docs/json.md and a test comparing them."""
+    with_json = sorted(c for c, has_json in cli_commands().items() if has_json)
+    for command in with_json:
+        documented(command)  # fails when docs/json.md has no section for it
+    unchecked = sorted(set(with_json) - set(COMMANDS) - set(COVERED_ELSEWHERE))
+    assert not unchecked, f"--json outputs no test compares with docs/json.md: {unchecked}"
+
+
+def test_every_command_has_a_user_page():
+    """Every command is explained on some page of docs/ (besides its generated --help)."""
+    pages = "\n".join(p.read_text(encoding="utf-8") for p in (REPO / "docs").rglob("*.md"))
+    missing = sorted(c for c in cli_commands() if f"orange-plan {c}" not in pages)
+    assert not missing, f"commands no page of docs/ mentions: {missing}"

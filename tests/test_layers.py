@@ -1,4 +1,5 @@
-"""The package's layers (README "Layers"): imports point down, and no import circles.
+"""The package's layers (docs/development/architecture.md, "Layers"): imports point down,
+and no import circles.
 
 Every import of an ``orange_plan`` module counts, also one inside a function: a lazy import
 still ties the two modules together.
@@ -18,10 +19,14 @@ from scipy.sparse.csgraph import connected_components
 PACKAGE = REPO / "orange_plan"
 
 
-def readme_layers() -> dict[str, int]:
-    """Module or folder (``planning/``, ``cli.py``) -> layer number, from the README table."""
-    text = (REPO / "README.md").read_text(encoding="utf-8")
-    section = text.split("### Layers", 1)[1].split("\n#", 1)[0]
+LAYERS_DOC = REPO / "docs" / "development" / "architecture.md"
+
+
+def documented_layers() -> dict[str, int]:
+    """Module or folder (``planning/``, ``cli.py``) -> layer number, from the layer table of
+    the architecture page."""
+    text = LAYERS_DOC.read_text(encoding="utf-8")
+    section = text.split("## Layers", 1)[1].split("\n#", 1)[0]
     layers = {}
     for row in re.findall(r"^\| (\d+) \| ([^|]+) \|", section, flags=re.M):
         for name in re.findall(r"`([^`]+)`", row[1]):
@@ -68,9 +73,9 @@ def edges() -> set[tuple[str, str]]:
 
 
 def test_every_module_has_a_layer_and_imports_point_down():
-    layers = readme_layers()
+    layers = documented_layers()
     missing = sorted(m for m in MODULES if m != "orange_plan" and layer_of(m, layers) is None)
-    assert not missing, f"modules on no layer of the README: {missing}"
+    assert not missing, f"modules on no layer of {LAYERS_DOC.name}: {missing}"
     upward = sorted((a, b) for a, b in edges() if "orange_plan" not in (a, b)
                     and layer_of(a, layers) < layer_of(b, layers))
     assert not upward, f"imports that point up a layer: {upward}"

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.errors import InputError
-from orange_plan.model_builder import (
+from orange_plan.physics.model_builder import (
     LUMPED,
     build_model,
     is_mass_coefficient,

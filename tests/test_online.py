@@ -10,13 +10,14 @@ from conftest import write_scenario
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from orange_plan.bench.identify import accuracy_pct, offline_range_m, online_run
+from orange_plan.bench.identify import online_run
 from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.identify.online import OnlineEstimator, stream
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
 from orange_plan.physics.terms import TERMS
+from orange_plan.sim.ranges import accuracy_pct, offline_range_m
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import Truth

@@ -113,7 +113,10 @@ def test_plan_png_other_scenarios(scenario, tmp_path):
     xy = lawnmower(ctx.world, region, 8 * step, step)
     plan = synthetic_plan(ctx.world, xy, 2 * step, n_waypoints=60)
     out = plot_plan(ctx.world, plan, tmp_path / f"{scenario}.png", scenario)
-    png_size(out)
+    assert out == tmp_path / f"{scenario}.png"
+    width, height = png_size(out)
+    assert 1000 <= width <= 3000 and 500 <= height <= 2000
+    assert os.listdir(tmp_path) == [f"{scenario}.png"]  # no temporary file left
 
 
 def test_bad_suffix_writes_nothing(campus, tmp_path):

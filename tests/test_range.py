@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.context import load_context
-from orange_plan.model_builder import build_model
+from orange_plan.physics.model_builder import build_model
 from orange_plan.physics.range import (
     generalised_range,
     radial_probe_paths,

@@ -14,7 +14,6 @@ from conftest import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from orange_plan.bench.identify import accuracy_pct
 from orange_plan.context import load_context
 from orange_plan.report import ar_drone, rusti_v1, rusti_v2, wear
 from orange_plan.report.real_data import range_accuracy_pct
@@ -27,6 +26,7 @@ from orange_plan.report.trials import (
     with_belief,
     with_duty_cycle,
 )
+from orange_plan.sim.ranges import accuracy_pct
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
@@ -134,6 +134,9 @@ def test_reduced_report_is_complete_and_in_range(tmp_path):
     assert "66-91 %" in stdout and "82.97 / 93.87 %" in stdout
     md = (out / "report.md").read_text()
     summary = json.loads((out / "report.json").read_text())
+    from test_json_docs import compare
+
+    compare("report paper", summary | {"out": str(out)})  # what --json prints
     for name in summary["files"]:
         assert (out / name).stat().st_size > 1000, name
         if name.endswith(".png"):

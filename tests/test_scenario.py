@@ -9,7 +9,7 @@ import pytest
 from conftest import write_scenario
 
 from orange_plan.errors import InputError, ScenarioError
-from orange_plan.model_builder import build_model, reference_term_ids
+from orange_plan.physics.model_builder import build_model, reference_term_ids
 from orange_plan.physics.terms import DEFAULT_REGEN_EFFICIENCY
 from orange_plan.scenario import (
     DEFAULT_DISCREPANCY_REL_SD,

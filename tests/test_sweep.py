@@ -310,6 +310,9 @@ def test_bench_sweep_small_run_meets_its_own_bookkeeping(tmp_path):
                                    "--json")
     assert code == 0, stderr
     result = json.loads(stdout)
+    from test_json_docs import compare
+
+    compare("bench sweep", result)  # docs/json.md lists exactly these keys
     speed = result["speedup"]
     assert len(speed["seconds_1_worker"]) == len(speed["seconds_2_workers"]) == 1
     assert speed["speedup"] == pytest.approx(speed["median_1_worker_s"]

@@ -58,7 +58,7 @@ def labels_of(only: Sequence[str] | None) -> list[tuple[tuple[str, ...], str | N
 def concealed_benchmark(seeds: Sequence[int], duration_s: float, rate_Hz: float,
                         only: Sequence[str] | None = None,
                         progress: Callable[[], None] | None = None) -> list[ConcealedRow]:
-    """Generate every requested case for every seed, timed, and replay it (SPEC §5 predict)."""
+    """Generate every requested case for every seed, timed, and replay it (predict)."""
     rows = []
     for seed in seeds:
         for terms, kind in labels_of(only):

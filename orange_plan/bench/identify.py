@@ -1,15 +1,10 @@
-"""Reproducible measurements for issue #4: offline vs online range (simulated runs to
-depletion) and calibration on held-out real recordings.
+"""Reproducible measurements: offline vs online range (simulated runs to depletion) and
+calibration on held-out real recordings.
 
 Offline vs online (the paper's AR Drone comparison, range accuracy
-``1 - |d_pred - d_true| / d_true``):
+``1 - |d_pred - d_true| / d_true``; the route, the offline estimate and the accuracy are
+``sim.ranges``'):
 
-* route: the a priori probe of the generalised range (out-and-back rays from home in
-  ``N_RAYS`` headings, ``physics.range.radial_probe_paths``), rays cut so one lap is at most
-  10 % of the offline range, at the scenario's v_opt, repeated until the truth's usable
-  energy is spent; ``d_true`` is the distance flown/driven at depletion.
-* offline: Eq. 11 with the path integral taken a priori on that very route with the
-  scenario's model: ``d = E_avail / (E_route / L_route)`` (``physics.pathcost.path_energy``).
 * online: the ``OnlineEstimator`` fed the recording's samples (1 s batches); the estimate
   at 20 % of the run (and the mean accuracy at 20, 40, 60, 80 %): distance so far +
   remaining energy / live energy per metre (memory and window 600 s). It sees the
@@ -28,22 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-from orange_plan.context import load_context
+from orange_plan.context import Context, load_context
 from orange_plan.identify.calibrate import Calibrator
 from orange_plan.identify.online import OnlineEstimator, stream
-from orange_plan.model_builder import model_with_terms
-from orange_plan.physics.pathcost import path_energy
-from orange_plan.physics.range import radial_probe_paths
+from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.planning.reserve import ConfidenceReserve
-from orange_plan.sim.route import Route
+from orange_plan.sim.ranges import PREDICT_AT, accuracy_pct, lap_route, offline_range_m
 from orange_plan.sim.simulator import simulate
 from orange_plan.sim.truth import truth_from_dict
 from orange_plan.telemetry.importers import FORMATS
 from orange_plan.telemetry.recording import cumulative_J, recording_from_frame
 from orange_plan.telemetry.replay import run_energy
 from orange_plan.telemetry.state import recording_state
-
-N_RAYS = 8
 
 BENCH_TRUTHS: dict[str, dict] = {
     # the drone meets a stronger, gusty wind from another direction than forecast
@@ -81,7 +72,7 @@ class OnlineRow:
     ``accuracy_online_mean_pct`` averages the online accuracy over all ``PREDICT_AT``.
     ``energy_predicted_prior_J`` / ``_sd_J``: the a-priori model's whole-run energy along the
     recorded motion and its predictive standard deviation (``_param_sd_J``: its coefficient
-    covariance part alone, the reserve before issue #8); ``energy_recorded_J`` the run's.
+    covariance part alone, a reserve without the run-to-run discrepancy); ``energy_recorded_J`` the run's.
     """
 
     scenario: str
@@ -105,50 +96,9 @@ class OnlineRow:
         return asdict(self)
 
 
-def accuracy_pct(d_pred: float, d_true: float) -> float:
-    """Range accuracy ``100 (1 - |d_pred - d_true| / d_true)`` [%] (the paper's measure)."""
-    return 100.0 * (1.0 - abs(d_pred - d_true) / d_true)
-
-
-def probe_route(ctx, n_rays: int = N_RAYS, max_ray_m: float | None = None):
-    """The a priori route: out-and-back rays from home joined into one closed polyline, each
-    ray cut at ``max_ray_m`` from home."""
-    rays = radial_probe_paths(ctx.world, n_rays)
-    if max_ray_m is not None:
-        for r in rays:
-            out = r[1] - r[0]
-            length = float(np.hypot(*out))
-            if length > max_ray_m:
-                r[1] = r[0] + out * (max_ray_m / length)
-    xy = np.vstack([rays[0][:1]] + [r[1:] for r in rays])
-    return Route(xy, np.full(len(xy), np.nan), "probe rays")
-
-
-def offline_range_m(ctx, route) -> float:
-    """Generalised offline range (Eq. 11) with the path integral taken on ``route`` [m]."""
-    speed = route.speed_mps[:-1]
-    e = path_energy(ctx.model, ctx.world, route.xy_m, speed, ctx.conditions)
-    length = float(np.sum(np.hypot(*np.diff(route.xy_m, axis=0).T)))
-    return ctx.scenario.battery.usable_J / (e.total_J / length)
-
-
-PREDICT_AT = (0.2, 0.4, 0.6, 0.8)
-"""Fractions of the run (mission time) at which the online estimate is taken."""
 RESERVE_CONFIDENCES = (0.9, 0.95)
 """Confidences p at which the benchmarks check the reserve: a run's recorded energy should
 exceed predicted + reserve(p) in at most a fraction 1 - p of runs."""
-LAP_FRACTION = 0.1
-"""Probe rays are cut so that one lap is at most this fraction of the offline range."""
-
-
-def bench_route(ctx):
-    """The probe route at the scenario's v_opt, rays cut so a lap is <= LAP_FRACTION of the
-    offline range (a long field would otherwise never complete one lap)."""
-
-    speed = ctx.cruise_speed_mps
-    full = probe_route(ctx).with_default_speed(speed)
-    cap = LAP_FRACTION * offline_range_m(ctx, full) / (2 * N_RAYS)
-    return probe_route(ctx, max_ray_m=cap).with_default_speed(speed)
 
 
 @dataclass(frozen=True)
@@ -167,13 +117,13 @@ class OnlineTrace:
     prior: object
 
 
-def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
+def online_trace(ctx: Context, truth_dict: dict, seed: int, until_fraction: float = 1.0,
                  memory_s: float = 600.0, window_s: float = 600.0):
     """Simulate one run to depletion and stream it through the online estimator.
 
     Returns (OnlineTrace, list of OnlineEstimate, SimResult, route).
     """
-    route = bench_route(ctx)
+    route = lap_route(ctx)
     sim = simulate(ctx, route, truth_from_dict(truth_dict, "bench truth"), seed=seed,
                    to_depletion=True)
     rec = recording_from_frame(sim.frame, f"{ctx.scenario.name} seed {seed}")
@@ -189,7 +139,7 @@ def online_trace(ctx, truth_dict: dict, seed: int, until_fraction: float = 1.0,
     return trace, history, sim, route
 
 
-def online_run(ctx, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
+def online_run(ctx: Context, truth_dict: dict, seed: int, predict_at=PREDICT_AT,
                memory_s: float = 600.0, window_s: float = 600.0) -> OnlineRow:
     """Simulate one run to depletion and compare offline and online range estimates."""
     trace, history, sim, route = online_trace(ctx, truth_dict, seed, max(predict_at),
@@ -274,7 +224,7 @@ class CalibrationRow:
     (offline), with each prediction's predictive standard deviation (``_sd_J``: coefficient
     covariance plus run-to-run discrepancy, what a confidence reserve is sized from; the
     calibrated model's ``discrepancy_rel_sd`` is estimated on its training runs only;
-    ``_param_sd_J`` the coefficient covariance part alone, the reserve before issue #8), and
+    ``_param_sd_J`` the coefficient covariance part alone, a reserve without the run-to-run discrepancy), and
     online (``online_energy_errors``): ``online_error_pct`` at ``PREDICT_AT[0]`` of the run
     starting from the calibrated model, ``online_error_mean_abs_pct`` the mean |error| over
     ``PREDICT_AT``, and ``online_prior_error_pct`` at ``PREDICT_AT[0]`` starting from the

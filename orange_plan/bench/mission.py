@@ -54,11 +54,14 @@ dealt out to Dask workers like the runs of ``orange-plan sweep`` (``run_mission_
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
+import shutil
 import statistics
 import tempfile
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -66,13 +69,10 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError, OrangeError
-from orange_plan.sweep.flight import (
-    _Flown,
-    _fmt,
-    _simulate,
-    fly_open_loop,
-    stranding_upper_bound,
-)
+from orange_plan.sim.flight import Flown as _Flown
+from orange_plan.sim.flight import fly_open_loop, stranding_upper_bound
+from orange_plan.sim.flight import simulate_route as _simulate
+from orange_plan.sweep.report import cell as _fmt
 
 METHODS = ("session", "open_loop", "lawnmower", "lawnmower_energy", "oracle")
 """Method ids: (a), (b), (c), (e), (d)."""
@@ -148,7 +148,11 @@ def mission_specs(n: int, n_maps: int = 10, **kwargs) -> list[MissionSpec]:
 
 # --- worlds (memoised per process) ---------------------------------------------------------
 
-_CACHE: dict = {}
+MAP_KITS_KEPT = 8
+"""Map kits a process keeps (each holds a context, a roadmap, a tour and return paths: tens of
+MB); the least recently used goes first. A run's missions cycle through ``--maps`` maps."""
+_KITS: OrderedDict = OrderedDict()
+_FOLDERS: dict[int, Path] = {}
 
 
 @dataclass
@@ -162,10 +166,30 @@ class _MapKit:
 
 
 def _folder() -> Path:
-    key = ("folder", os.getpid())
-    if key not in _CACHE:
-        _CACHE[key] = Path(tempfile.mkdtemp(prefix="orange-bench-mission-"))
-    return _CACHE[key]
+    """This process's folder of generated worlds, removed when the process exits (a forked
+    worker makes its own and leaves its parent's alone)."""
+    pid = os.getpid()
+    if pid not in _FOLDERS:
+        _FOLDERS[pid] = Path(tempfile.mkdtemp(prefix="orange-bench-mission-"))
+        atexit.register(_remove_folder, _FOLDERS[pid], pid)
+    return _FOLDERS[pid]
+
+
+def _remove_folder(path: Path, pid: int) -> None:
+    if os.getpid() == pid:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def _remember(key, make: Callable[[], object], kept: int | None = None):
+    """``make()`` memoised under ``key``, keeping the ``kept`` (default ``MAP_KITS_KEPT``)
+    most recently used."""
+    if key in _KITS:
+        _KITS.move_to_end(key)
+        return _KITS[key]
+    value = _KITS[key] = make()
+    while len(_KITS) > (MAP_KITS_KEPT if kept is None else kept):
+        _KITS.popitem(last=False)
+    return value
 
 
 def study_scenario(folder: Path, spec: MissionSpec) -> Path:
@@ -192,19 +216,19 @@ def map_kit(spec: MissionSpec) -> _MapKit:
     from orange_plan.planning.reach import prepare_reach
     from orange_plan.planning.tour import plan_tour
 
+    def make() -> _MapKit:
+        ctx = load_context(study_scenario(_folder(), spec))
+        try:
+            plan, error = plan_tour(ctx, n_vertices=spec.n_vertices, seed=0,
+                                    bitstar_legs=0), None
+        except OrangeError as exc:
+            plan, error = None, f"{type(exc).__name__}: {exc}"
+        reach = prepare_reach(ctx, n_vertices=spec.n_vertices)
+        lawn = plan_lawnmower(ctx, reach)
+        return _MapKit(ctx, plan, error, np.asarray(lawn.xy_m, float), driven_home(reach), reach)
+
     key = (spec.map_seed, spec.width_m, spec.height_m, spec.n_vertices, spec.confidence)
-    if key in _CACHE:
-        return _CACHE[key]
-    ctx = load_context(study_scenario(_folder(), spec))
-    try:
-        plan, error = plan_tour(ctx, n_vertices=spec.n_vertices, seed=0, bitstar_legs=0), None
-    except OrangeError as exc:
-        plan, error = None, f"{type(exc).__name__}: {exc}"
-    reach = prepare_reach(ctx, n_vertices=spec.n_vertices)
-    lawn = plan_lawnmower(ctx, reach)
-    kit = _MapKit(ctx, plan, error, np.asarray(lawn.xy_m, float), driven_home(reach), reach)
-    _CACHE[key] = kit
-    return kit
+    return _remember(key, make)
 
 
 # --- truths -------------------------------------------------------------------------------
@@ -574,21 +598,6 @@ def mission_table(result: dict):
                   _fmt(r["energy_left_at_home_kJ"], ".2f"), _fmt(r["coverage_m2"], ",.0f"),
                   _fmt(r["coverage_over_oracle"], ".2f"), _fmt(r["replans"], ".0f"))
     return t
-
-
-def markdown_table(result: dict) -> str:
-    """The README table (Markdown)."""
-    lines = ["| truths | method | missions | stranded | p95 stranding | left at home kJ | "
-             "coverage m2 | coverage / oracle (per-mission median) | replans |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in table_rows(result):
-        lines.append(
-            f"| {r['family']} | {METHOD_LABELS[r['method']]} | {r['missions']} | "
-            f"{r['strandings']} | {_fmt(r['stranding_upper95'], '.2%')} | "
-            f"{_fmt(r['energy_left_at_home_kJ'], '.2f')} | {_fmt(r['coverage_m2'], ',.0f')} | "
-            f"{_fmt(r['coverage_over_oracle'], '.2f')} "
-            f"({_fmt(r['coverage_over_oracle_median'], '.2f')}) | {_fmt(r['replans'], '.0f')} |")
-    return "\n".join(lines)
 
 
 def mission_figure(result: dict, path) -> Path:

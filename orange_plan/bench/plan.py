@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError, OrangeError
-from orange_plan.sweep.flight import HOME_TOLERANCE_M, flown_footprint
+from orange_plan.sim.flight import HOME_TOLERANCE_M, flown_footprint
 
 METHODS = ("lawnmower", "lawnmower_energy", "distance", "physics")
 """Method ids: (a), (e), (b), (c)."""

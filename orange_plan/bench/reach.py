@@ -1,6 +1,6 @@
 """Benchmark of the planning core (``orange-plan bench reach``): timings and path quality.
 
-Measures, on one scenario (default: the hilly campus example), the targets of issue #3:
+Measures, on one scenario (default: the hilly campus example), its targets:
 roadmap + weights + both fields at 5,000 vertices; 10,000 goal queries; point-to-point energy
 against a dense-grid Dijkstra reference on the same map and model; energy saved against the
 shortest path; speed-optimiser time at N = 50, 200, 1000. Timings are medians over repeats.
@@ -12,6 +12,7 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from orange_plan.bench.gridref import grid_graph
 from orange_plan.planning.paths import bitstar_path, evaluate_path, roadmap_path
 from orange_plan.planning.reach import prepare_reach, query_points
 from orange_plan.planning.speed import SpeedSolver, cut_path, speed_problem
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 DEFAULT_PAIRS = ((0.075, 0.5, 0.925, 0.5), (0.075, 0.5, 0.875, 0.875),
                  (0.5, 0.0625, 0.5, 0.9375), (0.075, 0.5, 0.5625, 0.375))
@@ -79,7 +83,7 @@ def _median_time(fn: Callable[[], object], repeats: int):
     return statistics.median(times), out
 
 
-def run_reach_bench(ctx, repeats: int = 3, n_vertices: int = 5000, n_queries: int = 10_000,
+def run_reach_bench(ctx: Context, repeats: int = 3, n_vertices: int = 5000, n_queries: int = 10_000,
                     grid_cell_m: float | None = None, bitstar_seconds: float = 1.0,
                     speed_sizes=(50, 200, 1000), pairs=DEFAULT_PAIRS,
                     step: Callable[[str], None] = lambda s: None) -> BenchResult:

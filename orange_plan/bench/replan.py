@@ -1,4 +1,4 @@
-"""Replanning speed: how long a mid-mission replan takes (issue #10 target: p95 <= 250 ms on
+"""Replanning speed: how long a mid-mission replan takes (target: p95 <= 250 ms on
 the hilly campus example).
 
 A cold plan is made from home (roadmap, candidates, leg matrices, search, exact check); then
@@ -22,12 +22,16 @@ import os
 import statistics
 import time
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.planning.plan import StartState
 from orange_plan.planning.tour import TourPlanner
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 TARGET_P95_S = 0.25
 
@@ -54,7 +58,7 @@ class ReplanBench:
         return asdict(self) | {"p95_vs_target": self.p95_s / self.target_p95_s}
 
 
-def run_replan_bench(ctx, n_replans: int = 40, n_vertices: int = 5000, seed: int = 0,
+def run_replan_bench(ctx: Context, n_replans: int = 40, n_vertices: int = 5000, seed: int = 0,
                      tick=None) -> ReplanBench:
     """Cold plan, then ``n_replans`` warm replans from states along it (see module doc)."""
     load_before = os.getloadavg()

@@ -1,4 +1,4 @@
-"""Load benchmark of the HTTP service (``orange-plan bench service``; issue #10 targets).
+"""Load benchmark of the HTTP service (``orange-plan bench service``; targets).
 
 One real server: ``python -m orange_plan.cli serve`` in a subprocess on 127.0.0.1, a free
 port, a temporary database (WAL, ``synchronous=FULL``: every answered batch is committed),
@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import OrangeError
+from orange_plan.planning.plan import read_tour
 
 TARGETS = {"samples_per_s": 2000.0, "p99_ms": 50.0}
 SCENARIO = "rusti_v1_box"
@@ -176,9 +177,7 @@ class ServerProcess:
 def tour_path(plan_geojson: dict, speed_mps: float, rate_Hz: float) -> np.ndarray:
     """Positions every 1/rate_Hz s along the plan's tour at ``speed_mps`` (a closed walk:
     out along the tour and back, so the robot never jumps)."""
-    tour = next(f for f in plan_geojson["features"]
-                if f.get("properties", {}).get("kind") == "tour")
-    xy = np.asarray(tour["geometry"]["coordinates"], float)[:, :2]
+    xy, _ = read_tour(plan_geojson)
     xy = np.vstack([xy, xy[::-1][1:]])
     seg = np.hypot(*np.diff(xy, axis=0).T)
     s = np.r_[0.0, np.cumsum(seg)]

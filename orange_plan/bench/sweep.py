@@ -1,4 +1,4 @@
-"""Benchmarks of ``orange-plan sweep`` (issue #11 targets).
+"""Benchmarks of ``orange-plan sweep`` (targets).
 
 ``run_speedup_bench``: one fixed sweep (a shipped scenario, one run per seed) computed on a
 local Dask cluster of 1 and of 2 workers, alternately, ``repeats`` times. Each cluster is
@@ -32,6 +32,11 @@ from pathlib import Path
 
 import tomli_w
 
+from orange_plan.cluster import dask_client, run_tasks
+from orange_plan.sweep.spec import load_sweep
+from orange_plan.sweep.store import ResultStore
+from orange_plan.sweep.task import run_one
+
 TARGETS = {"speedup_1_to_2": 1.7, "resume_rows": 200}
 
 
@@ -54,10 +59,6 @@ def write_seed_sweep(folder: Path, scenario: Path, runs: int, vertices: int,
 def run_speedup_bench(scenario: Path, runs: int = 12, repeats: int = 3, vertices: int = 1000,
                       step: Callable[[str], None] | None = None) -> dict:
     """Time the sweep with 1 and 2 local workers (module docstring); return the figures."""
-    from orange_plan.cluster import dask_client, run_tasks
-    from orange_plan.sweep.spec import load_sweep
-    from orange_plan.sweep.store import ResultStore
-    from orange_plan.sweep.task import run_one
 
     step = step or (lambda text: None)
     times: dict[int, list[float]] = {1: [], 2: []}
@@ -120,8 +121,6 @@ def run_resume_check(scenario: Path, runs: int = 200, kill_after: int = 100,
                      vertices: int = 200, step: Callable[[str], None] | None = None) -> dict:
     """Kill a sweep of ``runs`` runs after ``kill_after`` rows, rerun it (module docstring)."""
     import pandas as pd
-
-    from orange_plan.sweep.store import ResultStore
 
     step = step or (lambda text: None)
     here = Path(__file__).resolve().parents[2]  # where this orange_plan is imported from

@@ -16,9 +16,10 @@ from orange_plan.cli import (
     handles_errors,
     out,
     print_json,
+    progress_console,
 )
 from orange_plan.errors import InputError
-from orange_plan.progress import stages, wanted
+from orange_plan.progress import stages
 
 TARGETS = {"roadmap_s": 2.5, "queries_s": 1.0, "roadmap_vs_grid": 1.03, "speed_1000_warm_s": 0.1,
            "saving_vs_shortest": 0.20}
@@ -43,7 +44,7 @@ def bench_reach_cmd(
     scenario = scenario or default_scenario()
     if repeats < 1:
         raise InputError(f"--repeats = {repeats} must be >= 1")
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         ctx = load_context(scenario)
         result = run_reach_bench(ctx, repeats=repeats, n_vertices=vertices,
                                  bitstar_seconds=bitstar_s, step=step)
@@ -96,7 +97,7 @@ DEFAULT_PLAN_SCENARIOS = "kiwibot_campus,ar_drone_wind,marine_survey,husky_a200,
 
 def check_outputs(png: Path | None, out_file: Path | None) -> None:
     """A benchmark's --png and --out, checked before its minutes of work."""
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
 
     if png is not None:
         check_output(png, "--png", [".png"])
@@ -164,7 +165,7 @@ def bench_plan_cmd(
                 tmp.write_text(json.dumps(result.to_dict(), indent=1), encoding="utf-8")
 
     with tempfile.TemporaryDirectory(prefix="orange-bench-plan-") as folder, \
-            stages(wanted(as_json)) as step:
+            stages(progress_console(as_json)) as step:
         specs = scenario_specs(names, Path(folder), 1 if quick else family_size,
                                {"width_m": 80.0, "height_m": 60.0} if quick else None)
         result = run_plan_bench(specs, plan_fn, seeds, n_vertices=800 if quick else 3000,
@@ -216,7 +217,7 @@ def bench_service_cmd(
                              ("--rate", rate, 1.0), ("--vertices", vertices, 50)):
         if not value >= low:
             raise InputError(f"{name} = {value} must be >= {low}")
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         result = run_service_bench(seconds=seconds, repeats=repeats, robots=robots,
                                    batch=batch, rate=rate, n_vertices=vertices, step=step)
     if as_json:
@@ -268,7 +269,7 @@ def bench_mission_cmd(
             with atomic_path(out_file, suffix=".json") as tmp:
                 tmp.write_text(json.dumps(result, indent=1), encoding="utf-8")
 
-    with bar(missions, "missions", wanted(as_json)) as tick:
+    with bar(missions, "missions", progress_console(as_json)) as tick:
         result = run_mission_study(missions, seed, maps, workers, kwargs, tick=tick,
                                    on_progress=save, scheduler=scheduler)
     save(result)

@@ -10,8 +10,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json
-from orange_plan.progress import bar, wanted
+from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json, progress_console
+from orange_plan.progress import bar
 
 
 @bench_app.command("concealed")
@@ -33,7 +33,7 @@ def concealed_cmd(
         raise InputError(f"--seeds = {seeds} must be >= 1")
     labels = [t.strip() for t in only.split(",") if t.strip()] if only else None
     total = seeds * len(labels_of(labels))
-    with bar(total, "generating cases", wanted(as_json)) as tick:
+    with bar(total, "generating cases", progress_console(as_json)) as tick:
         rows = concealed_benchmark(range(seeds), duration_s, rate_Hz, labels, progress=tick)
     summary = summarise_concealed(rows)
     if as_json:

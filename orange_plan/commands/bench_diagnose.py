@@ -8,8 +8,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json
-from orange_plan.progress import bar, wanted
+from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json, progress_console
+from orange_plan.progress import bar
 
 SeedsOpt = Annotated[str, typer.Option(
     "--seeds", help="Comma-separated seeds of the generated cases (the tests use 0 and 1).")]
@@ -27,10 +27,10 @@ def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt 
                        as_json: JsonOpt = False) -> None:
     """Concealed-effect cases: terms found, false positives, held-out RMSE and seconds of
     the diagnosis and of a LassoCV sparse regression over the same candidate features
-    (issue #9 targets)."""
+    (targets)."""
     from orange_plan.bench.diagnose import compare, summarise
     from orange_plan.errors import InputError
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.sim.concealed import concealed_suite
 
     try:
@@ -47,7 +47,7 @@ def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt 
     if not cases:
         raise InputError(f"--only {only!r} keeps no case")
     rows = []
-    with bar(len(cases), "diagnosing concealed cases", wanted(as_json)) as tick:
+    with bar(len(cases), "diagnosing concealed cases", progress_console(as_json)) as tick:
         for case in cases:
             rows.append(compare(case))
             if tick:

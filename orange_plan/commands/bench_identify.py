@@ -1,4 +1,4 @@
-"""``orange-plan bench calibration|online``: reproduce the issue #4 measurements.
+"""``orange-plan bench calibration|online``: offline vs online range and calibration on held-out recordings.
 
 The subcommands sit on the ``bench`` group of ``commands/bench.py`` (registered from here,
 so that file needs no edit).
@@ -12,8 +12,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json
-from orange_plan.progress import bar, wanted
+from orange_plan.cli import JsonOpt, bench_app, handles_errors, out, print_json, progress_console
+from orange_plan.progress import bar
 
 DataOpt = Annotated[Path | None, typer.Option(
     "--data", help="Folder with the real data sets' borealtc/ and tum_bmw_i3/ folders (not "
@@ -57,7 +57,7 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
         summarise_calibration,
     )
     from orange_plan.errors import InputError
-    from orange_plan.paths import require_folder
+    from orange_plan.files import require_folder
 
     names = _split(only) or list(CALIBRATION_CASES)
     unknown = [n for n in names if n not in CALIBRATION_CASES]
@@ -65,7 +65,7 @@ def calibration_cmd(data: DataOpt = None, scenarios: ScenariosOpt = None, only: 
         raise InputError(f"unknown dataset '{unknown[0]}'; known: {', '.join(CALIBRATION_CASES)}")
     data = require_folder(data, "--data") if data is not None else _default_data()
     scenarios = _scenarios(scenarios)
-    with bar(count_runs(data, names), "held-out runs", wanted(as_json)) as tick:
+    with bar(count_runs(data, names), "held-out runs", progress_console(as_json)) as tick:
         rows = calibration_benchmark(data, scenarios, names, progress=tick)
     summary = summarise_calibration(rows)
     if as_json:
@@ -130,13 +130,13 @@ def online_cmd(scenarios: ScenariosOpt = None, seeds: SeedsOpt = 3,
 
     names = _split(only) or list(BENCH_TRUTHS)
     if png is not None:
-        from orange_plan.paths import check_output
+        from orange_plan.files import check_output
 
         check_output(png, "--png", [".png"])
     if seeds < 1:
         raise InputError(f"--seeds = {seeds} must be >= 1")
     scenarios = _scenarios(scenarios)
-    with bar(len(names) * seeds, "simulating runs to depletion", wanted(as_json)) as tick:
+    with bar(len(names) * seeds, "simulating runs to depletion", progress_console(as_json)) as tick:
         rows = online_benchmark(scenarios, names, tuple(range(seeds)), progress=tick)
     summary = summarise(rows)
     report = {"summary": summary, "runs": [r.to_dict() for r in rows]}

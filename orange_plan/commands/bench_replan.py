@@ -1,4 +1,4 @@
-"""``orange-plan bench replan``: how fast a mid-mission replan is (issue #10 target)."""
+"""``orange-plan bench replan``: how fast a mid-mission replan is (target)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,17 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, bench_app, default_scenario, handles_errors, out, print_json
+from orange_plan.cli import (
+    JsonOpt,
+    bench_app,
+    default_scenario,
+    handles_errors,
+    out,
+    print_json,
+    progress_console,
+)
 from orange_plan.errors import InputError
-from orange_plan.progress import bar, wanted
+from orange_plan.progress import bar
 
 
 @bench_app.command("replan")
@@ -31,7 +39,7 @@ def bench_replan_cmd(
     if replans < 1:
         raise InputError(f"--replans = {replans} must be >= 1")
     ctx = load_context(scenario or default_scenario())
-    with bar(replans, "replans", wanted(as_json)) as tick:
+    with bar(replans, "replans", progress_console(as_json)) as tick:
         result = run_replan_bench(ctx, replans, vertices, seed, tick)
     if as_json:
         print_json(result.to_dict())

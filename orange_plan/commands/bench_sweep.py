@@ -1,5 +1,5 @@
 """``orange-plan bench sweep``: Dask speed-up from 1 to 2 workers, and a killed sweep resumed
-(issue #11 targets)."""
+(targets)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,17 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, bench_app, default_scenario, handles_errors, out, print_json
+from orange_plan.cli import (
+    JsonOpt,
+    bench_app,
+    default_scenario,
+    handles_errors,
+    out,
+    print_json,
+    progress_console,
+)
 from orange_plan.errors import InputError
-from orange_plan.progress import stages, wanted
+from orange_plan.progress import stages
 
 
 @bench_app.command("sweep")
@@ -39,7 +47,7 @@ def bench_sweep_cmd(
     if resume_runs != 0 and resume_runs < 4:
         raise InputError(f"--resume-runs = {resume_runs} must be >= 4 (or 0 to skip)")
     result = {}
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         result["speedup"] = run_speedup_bench(scenario or default_scenario(), runs, repeats,
                                               vertices, step)
         if resume_runs:

@@ -48,10 +48,10 @@ def calibrate_cmd(recordings: RecordingsArg, scenario: ScenarioOpt, output: OutO
                   grade_window_m: GradeOpt = None, as_json: JsonOpt = False) -> None:
     """Fit the scenario's term coefficients (with uncertainties) to one or more recordings."""
     from orange_plan.context import load_context
+    from orange_plan.files import check_output
     from orange_plan.identify.calibrate import Calibrator
     from orange_plan.identify.scenario_out import write_calibrated_scenario
-    from orange_plan.model_builder import physical_values
-    from orange_plan.paths import check_output
+    from orange_plan.physics.model_builder import physical_values
     from orange_plan.telemetry.recording import load_recording
     from orange_plan.telemetry.replay import check_positions_on_map
 

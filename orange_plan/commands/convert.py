@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json, progress_console
 
 LogArg = Annotated[Path, typer.Argument(
     help="Robot log: PX4 .ulg, ROS 1 .bag, ROS 2 bag (folder, .db3, .mcap), BorealTC "
@@ -23,8 +23,8 @@ def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
                 as_json: JsonOpt = False) -> None:
     """Import a robot log into a recording table (t_s, power_W, x_m, y_m, ...), checked and
     completed."""
-    from orange_plan.paths import check_output
-    from orange_plan.progress import stages, wanted
+    from orange_plan.files import check_output
+    from orange_plan.progress import stages
     from orange_plan.telemetry.importers import read_log
     from orange_plan.telemetry.recording import (
         recording_extension,
@@ -34,7 +34,7 @@ def convert_cmd(log: LogArg, output: OutOpt, fmt: FormatOpt = None,
 
     check_output(output, "-o", inputs=[log])  # before the (possibly long) import
     recording_extension(output)
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         step(f"reading {log.name}")
         frame, used = read_log(log, fmt)
         step(f"checking {len(frame):,} rows")

@@ -18,6 +18,7 @@ from orange_plan.cli import (
     handles_errors,
     out,
     print_json,
+    progress_console,
 )
 
 RecordingArg = Annotated[Path, typer.Argument(help=RECORDING_HELP)]
@@ -40,10 +41,10 @@ def diagnose_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = N
     """Locate where a recording and the model disagree, name the missing physics, add it and
     show the fit improve."""
     from orange_plan.context import load_context
+    from orange_plan.files import check_output
     from orange_plan.identify.diagnose import diagnose
     from orange_plan.identify.scenario_out import write_calibrated_scenario
-    from orange_plan.paths import check_output
-    from orange_plan.progress import stages, wanted
+    from orange_plan.progress import stages
     from orange_plan.telemetry.recording import load_recording
     from orange_plan.telemetry.replay import check_positions_on_map
 
@@ -52,7 +53,7 @@ def diagnose_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = N
         check_output(png, "--png", [".png"], inputs=[recording, scenario])
     if output is not None:
         check_output(output, "-o", [".toml"], inputs=[recording, scenario])
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         step(f"reading {recording.name}")
         rec = load_recording(recording)
         step("loading the scenario")

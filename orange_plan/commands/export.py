@@ -34,7 +34,7 @@ def export_cmd(
     speed changes as DO_CHANGE_SPEED, the end as return-to-launch."""
     from orange_plan.context import load_context
     from orange_plan.export.autopilot import build_mission, check_extension, write_mission
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.sim.route import PLAN_SUFFIXES, load_route
 
     check_extension(output, fmt)

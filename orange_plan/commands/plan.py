@@ -17,11 +17,12 @@ from orange_plan.cli import (
     out,
     parse_xy,
     print_json,
+    progress_console,
     warn,
 )
+from orange_plan.files import check_output
 from orange_plan.limits import MAX_ROADMAP_VERTICES, MIN_ROADMAP_VERTICES
-from orange_plan.paths import check_output
-from orange_plan.progress import stages, wanted
+from orange_plan.progress import stages
 
 
 @app.command("plan")
@@ -59,7 +60,7 @@ def plan_cmd(
     start_xy = parse_xy(from_xy, "--from") if from_xy is not None else None
     check_range(energy_used_J, "--energy-used-J", low_open=False)
     check_range(time_s, "--time-s", high=MAX_TIME_S, low_open=False)
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         step("loading scenario")
         ctx = load_context(scenario)
         start = StartState(start_xy, float(energy_used_J), float(time_s))

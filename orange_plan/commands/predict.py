@@ -15,6 +15,7 @@ from orange_plan.cli import (
     handles_errors,
     out,
     print_json,
+    progress_console,
 )
 
 RecordingArg = Annotated[Path, typer.Argument(help=RECORDING_HELP)]
@@ -28,14 +29,14 @@ def predict_cmd(recording: RecordingArg, scenario: ScenarioOpt, png: PngOpt = No
                 as_json: JsonOpt = False) -> None:
     """Replay a recording's motion through the scenario's model: energy and power error."""
     from orange_plan.context import load_context
-    from orange_plan.paths import check_output
-    from orange_plan.progress import stages, wanted
+    from orange_plan.files import check_output
+    from orange_plan.progress import stages
     from orange_plan.telemetry.recording import cumulative_J, load_recording
     from orange_plan.telemetry.replay import check_positions_on_map, replay_context
 
     if png is not None:
         check_output(png, "--png", [".png"], inputs=[recording, scenario])
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         step(f"reading {recording.name}")
         rec = load_recording(recording)
         step("loading the scenario")

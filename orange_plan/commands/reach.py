@@ -18,10 +18,11 @@ from orange_plan.cli import (
     out,
     parse_xy,
     print_json,
+    progress_console,
     warn,
 )
 from orange_plan.limits import MAX_ROADMAP_VERTICES, MIN_ROADMAP_VERTICES
-from orange_plan.progress import stages, wanted
+from orange_plan.progress import stages
 
 
 @app.command("reach")
@@ -53,10 +54,10 @@ def reach_cmd(
     start = parse_xy(from_xy, "--from") if from_xy is not None else None
     goal_set = load_goals(goals) if goals is not None else None
     if png is not None:
-        from orange_plan.paths import check_output
+        from orange_plan.files import check_output
 
         check_output(png, "--png", [".png"], inputs=[scenario, goals])
-    with stages(wanted(as_json)) as step:
+    with stages(progress_console(as_json)) as step:
         step("loading scenario")
         ctx = load_context(scenario)
         step(f"building the energy roadmap ({vertices} vertices)")

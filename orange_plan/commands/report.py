@@ -1,4 +1,4 @@
-"""``orange-plan report paper``: the ORangE paper's validation, regenerated (issue #12)."""
+"""``orange-plan report paper``: the ORangE paper's validation, regenerated."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
+from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json, progress_console
 from orange_plan.commands.bench_identify import DataOpt, ScenariosOpt, _scenarios
 from orange_plan.errors import InputError
-from orange_plan.paths import check_output, require_folder
-from orange_plan.progress import bar, wanted
+from orange_plan.files import check_output, require_folder
+from orange_plan.progress import bar
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports regenerated from one command.")
 app.add_typer(report_app, name="report")
@@ -48,7 +48,7 @@ def paper_cmd(
 
         data = find_dir("data")
     scenarios = _scenarios(scenarios)
-    with bar(total_items(trials, data), "report paper: runs", wanted(as_json)) as tick:
+    with bar(total_items(trials, data), "report paper: runs", progress_console(as_json)) as tick:
         summary = generate(out_dir, scenarios, data, trials, seed, tick)
     if as_json:
         print_json(summary | {"out": str(out_dir)})

@@ -13,7 +13,7 @@ import typer
 
 from orange_plan.cli import app, handles_errors
 from orange_plan.errors import InputError
-from orange_plan.paths import require_folder
+from orange_plan.files import require_folder
 
 
 @app.command("serve")
@@ -40,7 +40,7 @@ def serve_cmd(
     them. With ORANGE_PLAN_TOKEN set, every /missions... request needs that bearer token."""
     import uvicorn
 
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.service.app import TOKEN_ENV, create_app
     from orange_plan.service.limits import Limits
 

@@ -43,7 +43,7 @@ def simulate_cmd(scenario: ScenarioArg, plan: PlanArg, output: OutOpt, truth: Tr
     Speeds are clipped to the robot's v_min_mps..v_max_mps; clipped vertices are counted.
     """
     from orange_plan.context import load_context
-    from orange_plan.paths import check_output
+    from orange_plan.files import check_output
     from orange_plan.sim.route import load_route
     from orange_plan.sim.simulator import simulate
     from orange_plan.sim.truth import load_truth

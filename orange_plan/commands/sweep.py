@@ -7,9 +7,9 @@ from typing import Annotated
 
 import typer
 
-from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json
-from orange_plan.paths import check_output
-from orange_plan.progress import bar, wanted
+from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json, progress_console
+from orange_plan.files import check_output
+from orange_plan.progress import bar
 
 
 @app.command("sweep")
@@ -42,7 +42,7 @@ def sweep_cmd(
     sweep = load_sweep(sweep_file)
     store = ResultStore(output)
     todo = len(pending_runs(sweep, store))
-    with bar(todo, "runs", wanted(as_json) and todo > 0) as tick:
+    with bar(todo, "runs", progress_console(as_json) if todo > 0 else None) as tick:
         result = run_sweep(sweep, store, workers, scheduler, tick)
     summary = summary_rows(result.rows, sweep.grid_keys)
     title = f"sweep {sweep.name}: {len(result.rows)} runs"

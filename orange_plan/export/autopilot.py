@@ -120,7 +120,7 @@ def enu_to_geodetic(origin, east_m, north_m, up_m=0.0):
 
     Parameters
     ----------
-    origin : object with ``lat_deg``, ``lon_deg``, ``alt_m`` (the map's origin, SPEC §1)
+    origin : object with ``lat_deg``, ``lon_deg``, ``alt_m`` (the map's origin: docs/formats.md, Map)
     east_m, north_m, up_m : tangent-plane coordinates (any broadcastable shapes) [m]
 
     Notes

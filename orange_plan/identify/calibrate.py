@@ -77,8 +77,8 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from orange_plan.errors import InputError
-from orange_plan.model_builder import model_with_terms
 from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.physics.state import MotionState
 from orange_plan.telemetry.state import recording_state, wheels_up
 

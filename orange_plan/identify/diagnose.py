@@ -86,8 +86,13 @@ from orange_plan.identify.locate import (
     residual_by_condition,
     residual_by_surface,
 )
-from orange_plan.model_builder import SURFACE_PREFIX, make_term, mass_exponents, with_payload
 from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.model_builder import (
+    SURFACE_PREFIX,
+    make_term,
+    mass_exponents,
+    with_payload,
+)
 from orange_plan.physics.terms import TERMS, aero_drag_feature, spec_id
 from orange_plan.physics.wind import wind_speed_and_from
 

@@ -39,8 +39,8 @@ import tomli_w
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError, OrangeError
-from orange_plan.model_builder import LUMPED, build_model, physical_values
 from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.model_builder import LUMPED, build_model, physical_values
 from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
 
 WRITTEN_BACK = tuple(row.physical for row in LUMPED.values()

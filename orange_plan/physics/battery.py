@@ -96,7 +96,7 @@ class Battery:
 
     @property
     def usable_J(self) -> float:
-        """Usable energy ``E_avail = E (1 - eta_1)`` [J] (SPEC §7)."""
+        """Usable energy ``E_avail = E (1 - eta_1)`` [J]."""
         return self.capacity_J * (1.0 - self.storage_loss)
 
 

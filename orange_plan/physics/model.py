@@ -39,7 +39,7 @@ class SegmentEnergy:
 
 
 class EnergyModel:
-    """Battery power as an ordered sum of physics terms (DESIGN.md "the one idea").
+    """Battery power as an ordered sum of physics terms (each term linear in one lumped coefficient).
 
     Parameters
     ----------
@@ -55,7 +55,7 @@ class EnergyModel:
     -----
     Time domain: ``P = sum_power theta phi + max(0, F) v - r Omega^2 max(0, -F) v
     + sum_rate theta |yaw rate|`` with ``F = sum_force theta phi`` the lumped traction force.
-    Path domain (SPEC §7): a step of length L at speed v costs ``P_power L / (v D)
+    Path domain: a step of length L at speed v costs ``P_power L / (v D)
     + max(0, F) L + theta_turn |heading change|``.
     Predictive variance of a run's energy E with gradient g = dE/dtheta:
     ``g' Cov g + (discrepancy_rel_sd E)^2`` (``predictive_variance_J2``).
@@ -223,7 +223,7 @@ class EnergyModel:
         heading_change_rad=0.0,
         theta=None,
     ) -> SegmentEnergy:
-        """Energy of straight steps of 3-D length ``length_m`` at ``state`` (SPEC §7).
+        """Energy of straight steps of 3-D length ``length_m`` at ``state``.
 
         Parameters
         ----------
@@ -379,7 +379,7 @@ class EnergyModel:
         Two independent sources: the coefficients' uncertainty (their covariance) and the
         run-to-run discrepancy, the spread of real runs around the best model (estimated from
         held-out recordings at calibration time, ``Calibrator.discrepancy_rel_sd_``). A
-        ``confidence = p`` reserve is ``z_p`` times its square root (SPEC §2, §7).
+        ``confidence = p`` reserve is ``z_p`` times its square root (``mission.reserve``: docs/formats.md).
         """
         disc = self.discrepancy_rel_sd * np.asarray(energy_J, dtype=float)
         return self.energy_variance_J2(gradient) + disc**2

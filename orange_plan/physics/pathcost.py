@@ -1,4 +1,4 @@
-"""Energy of straight segments and polylines over a World (SPEC §7 path integral).
+"""Energy of straight segments and polylines over a World (the reference model's path integral).
 
 Terrain that varies along a segment is integrated in sub-steps no longer than 0.5 m or half
 an elevation cell, with the no-recovery ``max(0, .)`` applied per sub-step; turning energy is
@@ -22,7 +22,7 @@ from orange_plan.physics.profile import profile_energy
 from orange_plan.physics.state import MotionState
 
 MAX_STEP_M = 0.5
-"""Longest integration sub-step [m] (SPEC §7); shortened to half a raster cell if smaller."""
+"""Longest integration sub-step [m]; shortened to half a raster cell if smaller."""
 
 
 @dataclass(frozen=True)
@@ -196,7 +196,7 @@ class PathEnergy:
 
     Attributes
     ----------
-    segments : SPEC §7 per-segment energies at cruise speed throughout (turning charged to the
+    segments : reference-model per-segment energies at cruise speed throughout (turning charged to the
         segment leaving the vertex): the reference figure
     cumulative_J : energy used on arrival at each vertex, shape (n_vertices,) [J]; at the last
         vertex the whole path's energy
@@ -204,7 +204,7 @@ class PathEnergy:
 
     With a speed profile (``path_energy(..., accel_max_mps2=a)``) the cumulative figures are
     those of the driven profile: ramps at ``a``, duty-cycle stops, at rest at both ends, the
-    duty cycle waited out at the end (``physics.profile``); without one they are the SPEC §7
+    duty cycle waited out at the end (``physics.profile``); without one they are the reference model's
     sums of ``segments``.
     """
 
@@ -222,12 +222,12 @@ class PathEnergy:
 
     @property
     def reference_J(self) -> float:
-        """The SPEC §7 figure: cruise speed throughout, stops through the duty cycle [J]."""
+        """The reference-model figure: cruise speed throughout, stops through the duty cycle [J]."""
         return float(np.sum(self.segments.total_J))
 
     @property
     def profile_J(self) -> float:
-        """Energy of the speed profile on top of the SPEC §7 figure (0 without a profile) [J]:
+        """Energy of the speed profile on top of the reference-model figure (0 without a profile) [J]:
         the longer moving time of speeding up and slowing down, inertia and regen if modelled."""
         return self.total_J - self.reference_J
 
@@ -250,12 +250,12 @@ def path_energy(
     conditions : duty cycle, sensor rate and wind (``physics.conditions``)
     accel_max_mps2 : the robot's acceleration limit [m/s^2]. Given, the energy is that of the
         speed profile the robot drives (``physics.profile``: what the simulator draws on this
-        path under this model); None gives the SPEC §7 reference figure, cruise speed
+        path under this model); None gives the reference-model figure, cruise speed
         throughout. Planners pass it: a plan must not be optimistic.
 
     Notes
     -----
-    Reference (SPEC §7): per sub-step ``P_anc L / (v D) + max(0, F) L``, plus
+    Reference: per sub-step ``P_anc L / (v D) + max(0, F) L``, plus
     ``turn_J_per_rad |heading change|`` per interior vertex. Profile:
     ``sum_k P(state_k) dt`` over the driven samples, ``P`` the model's time-domain power.
     """
@@ -286,7 +286,7 @@ def segments_energy_jacobian(
     """d(energy of each segment)/d theta, shape (n_segments, n_coefficients) [J per unit].
 
     With the model's covariance, ``model.energy_variance_J2(jac.sum(0))`` is the variance of a
-    path's energy: the basis of a reserve sized by confidence (DESIGN.md, SPEC §7).
+    path's energy: the basis of a reserve sized by confidence (docs/guide/plan.md).
     """
     speed = np.broadcast_to(np.asarray(speed_mps, float), (steps.n_segments,))
     state = steps.state(speed, conditions)

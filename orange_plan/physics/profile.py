@@ -1,6 +1,6 @@
 """The speed profile a robot drives along a path, shared by the planner and the simulator.
 
-A plan's energy must cover what the robot draws when it drives the plan, and the SPEC §7
+A plan's energy must cover what the robot draws when it drives the plan, and the reference-model
 straight-segment figure (cruise speed throughout) does not: the robot starts and ends at
 rest, changes speed at ``accel_max_mps2`` and stops on its duty cycle. This module is the one
 description of that motion. ``Driver`` steps it in time; ``drive_state`` turns its samples
@@ -12,7 +12,7 @@ model agree to the sampling of the power.
 The motion (Notes of ``Driver``): accelerate at ``a_max`` towards each sub-step's cruise speed;
 after every ``stop_every_s`` of moving time brake at ``a_max`` to rest and wait until moving
 time / mission time is back to the duty cycle D; brake to rest at the end of the path and wait
-out the duty cycle there too, so the mission time is the moving time / D (SPEC §7's
+out the duty cycle there too, so the mission time is the moving time / D (the reference model's
 ``L / (v D)`` with the moving time of the real profile).
 """
 
@@ -66,7 +66,7 @@ class Driver:
     ``- a dt`` is one step of anticipation, as the speed follows the cap with a step's lag).
     Stops: after ``stop_every_s`` of moving, brake to rest and wait until ``t >= moving / D``;
     at the end of a single run the same wait once at rest, so the run's moving time / mission
-    time is D (SPEC §7's mission time, moving time / D).
+    time is D (the reference model's mission time, moving time / D).
     """
 
     def __init__(self, edges_m, step_speed, step_cos, accel_max, dt, duty,

@@ -140,7 +140,7 @@ def within_time_limit(result: RangeResult, cost_per_m, scenario,
 
 def simplified_range(scenario, model: EnergyModel, crr: float,
                      time_limit_s: float | None = None) -> RangeResult:
-    """Simplified ORangE on flat ground (the paper's Eq. 6, SPEC §7).
+    """Simplified ORangE on flat ground (the paper's Eq. 6).
 
     ``d_max = E_avail / (P_anc / (v D) + (crr m g + c v^2) / Omega)`` at the speed ``v_opt``
     in ``[v_min, v_max]`` that maximises it; with ``time_limit_s`` [s], see

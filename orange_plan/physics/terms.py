@@ -1,4 +1,4 @@
-"""Physics terms of the ORangE model, one per vocabulary id (SPEC §6).
+"""Physics terms of the ORangE model, one per vocabulary id.
 
 Battery power is a sum of terms, each linear in its own coefficient(s) ``theta``:
 
@@ -9,7 +9,7 @@ Battery power is a sum of terms, each linear in its own coefficient(s) ``theta``
 * ``force`` terms are traction forces divided by the manoeuvring efficiency Omega (the
   paper's Eq. 1-2 and Eq. 7: rolling, aerodynamic drag, grade, inertia). They are summed
   and clipped at zero *before* being charged, because a robot without regeneration gets
-  nothing back when the net force is negative (SPEC §7). The ``regen`` term is the
+  nothing back when the net force is negative. The ``regen`` term is the
   explicit exception: it returns a fraction of the negative part.
 * ``rate`` terms are charged per radian of heading change (skid-steer turning losses).
 * ``battery`` terms are losses inside the battery that grow with the square of the current
@@ -18,7 +18,7 @@ Battery power is a sum of terms, each linear in its own coefficient(s) ``theta``
   resistance R at terminal voltage V). Not linear in theta: the calibration, the reserve and
   diagnosis linearise it (``EnergyModel.power_jacobian``).
 
-The coefficients are lumped battery-side quantities (DESIGN.md): ``rolling_kg = m/Omega``,
+The coefficients are lumped battery-side quantities: ``rolling_kg = m/Omega``,
 ``drag_kg_per_m = c/Omega``, ``grade_kg = inertia_kg = m/Omega``. Every feature is written
 with operators that numpy arrays and CasADi symbols share (see ``ops``), so the planner and
 the speed optimiser evaluate the same expressions.
@@ -36,7 +36,7 @@ from orange_plan.physics import ops
 from orange_plan.physics.state import Channel, MotionState
 
 G_MPS2 = 9.81
-"""Standard gravity used by the reference model [m/s^2] (SPEC §7)."""
+"""Standard gravity used by the reference model [m/s^2]."""
 DEFAULT_REGEN_EFFICIENCY = 0.5
 """A priori ``regen_efficiency``: fraction of braking/descending energy recovered [-]."""
 
@@ -49,7 +49,7 @@ class Term:
 
     Parameters
     ----------
-    id : vocabulary id (SPEC §6)
+    id : vocabulary id
     group : ``power`` [W per coefficient unit], ``force`` [N per coefficient unit],
         ``rate`` [J/rad per coefficient unit], ``regen`` (recovery fraction) or ``battery``
         [1/W per coefficient unit] (module docstring)
@@ -100,7 +100,7 @@ def rolling_feature(state: MotionState):
 
 
 def aero_drag_feature(state: MotionState):
-    """Drag per unit c/Omega: ``|a| (a . u)`` with ``a = v u - w`` [m^2/s^2] (Eq. 1, SPEC §7).
+    """Drag per unit c/Omega: ``|a| (a . u)`` with ``a = v u - w`` [m^2/s^2] (Eq. 1).
 
     With no wind this is ``v^2``; a head wind raises it, a tail wind lowers it (and can make
     it negative: the wind pushes).
@@ -321,17 +321,17 @@ TERMS: dict[str, Term] = {
 
 VARIANT_OF = {"rolling_torque": "rolling", "turning_torque": "turning", "heater": "hvac",
               "hvac_ambient": "hvac"}
-"""Terms of our own that are variants of a SPEC §6 vocabulary id (reports give both)."""
+"""Terms of our own that are variants of a vocabulary id (reports give both)."""
 
 
 def spec_id(term_id: str) -> str:
-    """The SPEC §6 vocabulary id a term reports under (its own id unless a variant)."""
+    """The vocabulary id a term reports under (its own id unless a variant)."""
     return VARIANT_OF.get(term_id, term_id)
 
 
 REFERENCE_TERM_IDS = ("ancillary", "sensor_rate", "hover", "rolling", "aero_drag", "grade",
                       "turning")
-"""SPEC §7's reference model: switched on by the scenario's physical values
+"""The reference model: switched on by the scenario's physical values
 (``model_builder.reference_term_ids``)."""
 EXTRA_TERM_IDS = (*(t for t in TERMS if t not in REFERENCE_TERM_IDS), "surface_rolling")
 """Terms a scenario adds through ``[model] terms``: every other vocabulary term."""

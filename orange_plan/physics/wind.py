@@ -1,4 +1,4 @@
-"""Meteorological wind (or water current) <-> vector, the SPEC §7 convention.
+"""Meteorological wind (or water current) <-> vector, the reference-model convention.
 
 ``from_deg`` is the direction the wind blows *from*, clockwise from north (0 = from the
 north, so it blows south); the vector is (x east, y north) [m/s]. Works on scalars and arrays.

@@ -1,4 +1,4 @@
-"""Coverage candidates for the exploration tour (issue #8 item 1).
+"""Coverage candidates for the exploration tour.
 
 The tour planner chooses among *candidates*, pieces of work that each sense part of the free
 workspace with a sensor footprint of radius ``r = sensor_radius_m``:

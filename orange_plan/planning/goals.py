@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import InputError
-from orange_plan.paths import csv_delimiter_hint, require_file
+from orange_plan.files import csv_delimiter_hint, require_file
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from orange_plan.errors import PlanningError
+from orange_plan.physics.range import flat_energy_per_m_J
 from orange_plan.planning.lawnmower import FreeSegments
 from orange_plan.planning.paths import clean_polyline
 
@@ -143,7 +144,6 @@ class HomePaths:
 
 def _flat_energy_per_m(cost) -> float:
     """Energy per metre at the cruise speed on flat default ground [J/m] (joins' weight)."""
-    from orange_plan.physics.range import flat_energy_per_m_J
 
     return float(flat_energy_per_m_J(cost.model, cost.speed_mps, cost.world.default_crr,
                                      cost.conditions.sensor_rate_Hz, cost.conditions.duty_cycle))

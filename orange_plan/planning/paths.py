@@ -1,7 +1,7 @@
 """Point-to-point paths over the energy roadmap, re-evaluated exactly.
 
 A roadmap answer is a polyline a robot can drive: its edges passed the exact collision test,
-and its energy is re-evaluated with ``physics.pathcost.path_energy`` (exact terrain, SPEC §7
+and its energy is re-evaluated with ``physics.pathcost.path_energy`` (exact terrain, reference-model
 sub-steps, turning at interior vertices), so the figure reported is that path's energy.
 """
 
@@ -39,7 +39,7 @@ class PlannedPath:
     Attributes
     ----------
     xy_m : vertices, shape (n, 2) [m]
-    energy_J : battery energy of the whole path (path_energy: SPEC §7 sub-steps, and the
+    energy_J : battery energy of the whole path (path_energy: reference-model sub-steps, and the
         driven speed profile when the cost carries an acceleration limit) [J]
     length_m : horizontal length [m]
     duration_s : mission time, stops included [s]
@@ -91,10 +91,10 @@ def evaluate_path(cost: EdgeCostContext, xy, method: str) -> PlannedPath:
 
 def path_gradient(cost: EdgeCostContext, xy) -> np.ndarray:
     """d(path energy)/d theta of a polyline (exact terrain, turning included), shape (k,):
-    of the driven profile when the cost carries an acceleration limit, else of SPEC §7.
+    of the driven profile when the cost carries an acceleration limit, else of the reference model.
 
     With the model's covariance, ``model.energy_variance_J2(gradient)`` is the variance of the
-    path's energy (reserve sizing, SPEC §7).
+    path's energy (reserve sizing).
     """
     p = clean_polyline(xy)
     model = cost.model

@@ -1,8 +1,10 @@
-"""The plan a tour planner returns, and its SPEC §4 GeoJSON form.
+"""The plan a tour planner returns, and its GeoJSON form (docs/formats.md, "Plan").
 
 A ``Plan`` is data only: per-vertex arrays along the tour (start -> ... -> home), the visited
 waypoints, the sensed area and the summary figures. ``planning.tour`` makes plans; the
 ``plan`` command, the simulator, the figures and the replanning session read them.
+``Plan.to_geojson`` writes the file's form and ``plan_from_geojson`` (``read_tour`` for the
+tour alone) reads it back: the one reader of plan files.
 """
 
 from __future__ import annotations
@@ -13,17 +15,18 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-from shapely.geometry import mapping
+from shapely.geometry import mapping, shape
 
 from orange_plan.atomic import atomic_path
+from orange_plan.errors import InputError
 
 VERTEX_ARRAYS = ("t_s", "speed_mps", "energy_used_J", "energy_to_home_J", "margin_J")
-"""SPEC §4 per-vertex properties of the tour LineString (same length as its coordinates)."""
+"""Per-vertex properties of the tour LineString (same length as its coordinates)."""
 
 SUMMARY_KEYS = ("energy_available_J", "energy_planned_J", "reserve_J", "coverage_m2",
                 "coverage_fraction", "coverage_bound_m2", "duration_s", "return_probability",
                 "planner_seconds")
-"""SPEC §4 keys of the plan's top-level ``summary``."""
+"""Keys of the plan's top-level ``summary``."""
 
 
 @dataclass(frozen=True)
@@ -46,7 +49,7 @@ class StartState:
 
 @dataclass(frozen=True)
 class Plan:
-    """An exploration tour from a start state back home (SPEC §4).
+    """An exploration tour from a start state back home.
 
     Attributes
     ----------
@@ -58,11 +61,11 @@ class Plan:
         state's ``energy_used_J`` [J]
     energy_to_home_J : planned energy of the return home from each vertex at the cruise
         speed [J]
-    reserve_J : reserve kept at each vertex (SPEC §2 / §7) [J]
+    reserve_J : reserve kept at each vertex (``mission.reserve``) [J]
     margin_J : energy_available - energy_used - energy_to_home - reserve, >= 0 [J]
     waypoints_xy_m : the chosen coverage candidates' anchor points in visiting order [m]
     covered : the sensed area (start state's covered area included), shapely geometry [m^2]
-    summary : SPEC §4 summary figures (``SUMMARY_KEYS``) plus extras
+    summary : the summary figures (``SUMMARY_KEYS``) plus extras
     continuation_xy_m : where a robot that measures its energy in flight goes on after the
         guaranteed extent (from the tour's turn point; it ends at home), turning home on the
         live check; None: the tour is the whole route [m]
@@ -115,8 +118,8 @@ class Plan:
         return cut_path(rest, beyond) if beyond > 0 else None
 
     def to_geojson(self) -> dict:
-        """The SPEC §4 FeatureCollection (tour, waypoints, covered, summary; with a closed-loop
-        continuation, a LineString feature of kind ``continuation``)."""
+        """The plan file's FeatureCollection (tour, waypoints, covered, summary; with a
+        closed-loop continuation, a LineString feature of kind ``continuation``)."""
         tour = {
             "type": "Feature",
             "properties": {"kind": "tour",
@@ -143,7 +146,7 @@ class Plan:
                 "features": [tour, *waypoints, cover, *extra]}
 
     def write(self, path: str | Path) -> Path:
-        """Write the SPEC §4 GeoJSON atomically."""
+        """Write the plan's GeoJSON atomically."""
         text = json.dumps(self.to_geojson(), allow_nan=False)
         with atomic_path(path, suffix=".geojson") as tmp:
             tmp.write_text(text, encoding="utf-8")
@@ -158,3 +161,71 @@ def _plain(v):
     if isinstance(v, (np.floating, np.integer)):
         return v.item()
     return v
+
+
+TOUR_ARRAYS = (*VERTEX_ARRAYS, "reserve_J")
+"""Per-vertex arrays a plan file's tour may carry, in its properties."""
+
+
+def _features(data, kind: str) -> list[dict]:
+    features = data.get("features") if isinstance(data, dict) else None
+    return [f for f in features or [] if isinstance(f, dict)
+            and (f.get("properties") or {}).get("kind") == kind]
+
+
+def read_tour(data, source: str = "plan") -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+    """The tour of a plan file's GeoJSON ``data``: its vertices (n, 2) [m] and each per-vertex
+    array of ``TOUR_ARRAYS`` (None when the file has none).
+
+    Raises
+    ------
+    InputError
+        No feature of kind ``tour``, a tour that is not a LineString, coordinates or arrays
+        that are not numbers, an array whose length is not the tour's; the message starts
+        with ``source`` (the file's name).
+    """
+    tours = _features(data, "tour")
+    if not tours:
+        raise InputError(f"{source}: no feature with kind = 'tour' (a plan's tour LineString)")
+    geom = tours[0].get("geometry") or {}
+    if geom.get("type") != "LineString":
+        raise InputError(f"{source}: the tour must be a LineString, got {geom.get('type')!r}")
+    try:
+        xy = np.asarray([c[:2] for c in geom.get("coordinates", [])], dtype=float).reshape(-1, 2)
+    except (TypeError, ValueError, IndexError):
+        raise InputError(f"{source}: tour coordinates must be numbers") from None
+    props = tours[0].get("properties") or {}
+    arrays: dict[str, np.ndarray | None] = {}
+    for key in TOUR_ARRAYS:
+        if props.get(key) is None:
+            arrays[key] = None
+            continue
+        try:
+            values = np.asarray(props[key], dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"{source}: tour {key} must be numbers") from None
+        if values.shape != (len(xy),):
+            raise InputError(f"{source}: tour {key} has {values.size} values for {len(xy)} "
+                             "vertices")
+        arrays[key] = values
+    return xy, arrays
+
+
+def plan_from_geojson(data, source: str = "plan") -> Plan:
+    """A Plan from its GeoJSON (``Plan.to_geojson``); per-vertex arrays the file lacks read
+    as zeros.
+
+    Raises
+    ------
+    InputError
+        As ``read_tour``.
+    """
+    xy, arrays = read_tour(data, source)
+    filled = {k: np.zeros(len(xy)) if v is None else v for k, v in arrays.items()}
+    waypoints = [f["geometry"]["coordinates"] for f in _features(data, "waypoint")]
+    covered = next((shape(f["geometry"]) for f in _features(data, "covered")), None)
+    rest = next((f["geometry"]["coordinates"] for f in _features(data, "continuation")), None)
+    continuation = None if rest is None else np.asarray(rest, float).reshape(-1, 2)
+    return Plan(xy, waypoints_xy_m=np.asarray(waypoints, float).reshape(-1, 2), covered=covered,
+                summary=dict(data.get("summary", {})), continuation_xy_m=continuation,
+                **filled)

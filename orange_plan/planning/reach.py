@@ -1,4 +1,4 @@
-"""Reachability: which goals can be visited with the robot still getting home (SPEC §5, §7).
+"""Reachability: which goals can be visited with the robot still getting home .
 
 Problem statement (kept apart from how it is solved): a goal ``g`` is feasible from a start
 ``s`` (home, or the robot's position after ``energy_used_J``) when a drivable path
@@ -8,7 +8,7 @@ Problem statement (kept apart from how it is solved): a goal ``g`` is feasible f
     and  time_used_s + T(s -> g -> home) within mission.time_limit_s (mission.check_time_limit)
 
 where ``E`` and ``T`` are the battery energy and mission time of the speed profile the robot
-drives at the cruise speed (``physics.profile``: the SPEC §7 energy plus ramps and stops) and
+drives at the cruise speed (``physics.profile``: the reference-model energy plus ramps and stops) and
 the reserve follows the scenario's ``mission.reserve``. How it is solved: an energy roadmap
 (``roadmap``), Dijkstra fields from the start and to home, each goal joined to its nearest
 roadmap vertices by collision-checked straight segments; the chosen round trip is then
@@ -20,6 +20,7 @@ answers are conservative).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -40,11 +41,14 @@ from orange_plan.planning.roadmap import (
 )
 from orange_plan.world.rasters import TerrainRasters, build_rasters
 
+if TYPE_CHECKING:
+    from orange_plan.context import Context
+
 K_NEAREST = 12
 """Roadmap vertices a goal is joined to (the best collision-free one is used)."""
 
 
-# --- reserve (SPEC §7) ---------------------------------------------------------------------
+# --- reserve ---------------------------------------------------------------------
 
 
 def reserve_J(reserve, energy_available_J: float, variance_J2) -> np.ndarray:
@@ -136,14 +140,14 @@ class Reachability:
         return tuple(float(v) for v in self.roadmap.xy_m[self.start_index])
 
 
-def cost_contexts(ctx, terrain: TerrainRasters, speed_mps: float | None = None,
+def cost_contexts(ctx: Context, terrain: TerrainRasters, speed_mps: float | None = None,
                   with_gradient: bool | None = None):
     """(fast, exact) edge-cost contexts of a scenario at the cruise speed.
 
     The cruise speed defaults to the simplified ORangE optimum ``v_opt`` (Eq. 6). The fast
     context samples terrain on the rasters once per elevation cell (or raster cell on flat
     maps): on the hilly example this changed roadmap path energies by < 0.5 % against half-cell
-    steps at half the cost. The exact one uses the World and the SPEC §7 sub-step.
+    steps at half the cost. The exact one uses the World and the reference-model sub-step.
     """
     sc = ctx.scenario
     if speed_mps is None:
@@ -178,7 +182,7 @@ def check_start_free(world, xy) -> None:
                               "boundary or inside an obstacle / no-go zone")
 
 
-def prepare_reach(ctx, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
+def prepare_reach(ctx: Context, start_xy=None, energy_used_J: float = 0.0, n_vertices: int = 5000,
                   seed: int = 0, speed_mps: float | None = None,
                   terrain: TerrainRasters | None = None,
                   with_gradient: bool | None = None, time_used_s: float = 0.0) -> Reachability:

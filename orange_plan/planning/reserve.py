@@ -1,4 +1,4 @@
-"""Reserve rules: the energy kept back for getting home (SPEC §2, §7), one object per rule.
+"""Reserve rules: the energy kept back for getting home (``mission.reserve``: docs/formats.md), one object per rule.
 
 A scenario's ``mission.reserve`` names one of three rules; ``reserve_from`` turns it into one
 of the objects below, and planning asks that object rather than the rule's name:
@@ -149,7 +149,7 @@ class ReserveRule(ABC):
 @dataclass(frozen=True)
 class ConfidenceReserve(ReserveRule):
     """``confidence = p``: ``z_p`` predictive standard deviations kept back, so that the
-    robot gets home with probability ``p`` (DESIGN.md: the reserve is sized by the model, not
+    robot gets home with probability ``p`` (the reserve is sized by the model, not
     a magic margin). ``bench calibration`` measures how often real runs exceed it.
 
     A ``p`` below 0.5 gives a negative ``z_p``: the plan may then count on drawing less than

@@ -82,10 +82,10 @@ class EdgeCostContext:
     terrain: object  # TerrainRasters (fast crr look-ups) or the World itself (exact)
     speed_mps: float
     conditions: Conditions  # duty cycle, sensor rate, wind: the Context's
-    step_m: float | None = None  # integration sub-step; None: the SPEC §7 sub-step
+    step_m: float | None = None  # integration sub-step; None: the reference-model sub-step
     with_gradient: bool = True  # also compute d energy / d theta (confidence reserves)
     # the robot's acceleration limit: exact path energies follow the driven speed profile
-    # (ramps, duty-cycle stops); edge weights stay SPEC §7 (they only rank paths)
+    # (ramps, duty-cycle stops); edge weights stay reference-model figures (they only rank paths)
     accel_max_mps2: float | None = None
 
     def costs(self, start_xy, end_xy):

@@ -3,7 +3,7 @@
 Problem statement (``SpeedProblem``): a path cut into N straight pieces i with length L_i,
 grade, direction and rolling coefficient; choose speeds v_i to
 
-    minimise   sum_i E_i(v_i)                      (objective "energy", SPEC §7 energy)
+    minimise   sum_i E_i(v_i)                      (objective "energy", reference-model energy)
     or         sum_i L_i / (v_i D)                 (objective "time": mission time)
     subject to v_min <= v_i <= v_max
                |v_{i+1}^2 - v_i^2| <= 2 a_max L_i  (constant-acceleration limit)
@@ -11,7 +11,7 @@ grade, direction and rolling coefficient; choose speeds v_i to
                sum_i E_i(v_i) <= E_budget          (energy budget, time objective)
 
 ``E_i`` is ``EnergyModel.segment_energy`` evaluated on CasADi MX symbols: the very term code
-the planner evaluates on numpy arrays (DESIGN.md: no physics written twice).
+the planner evaluates on numpy arrays (no physics written twice).
 
 How it is solved (``SpeedSolver``): one parametric MX ``nlpsol`` (IPOPT) per (N, objective),
 built once and cached; the pieces' geometry is the parameter vector, so a new path of the
@@ -21,6 +21,7 @@ same N only re-solves, warm-started from the previous speeds (notes §7).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.pathcost import Steps, path_energy, subdivide
 from orange_plan.physics.state import MotionState
 from orange_plan.planning.paths import dedupe
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 TIGHTEN_ROUNDS = 4
 """Re-solves allowed to bring the driven profile within a time limit or energy budget."""
@@ -136,12 +140,12 @@ class SpeedProfile:
     Attributes
     ----------
     xy_m : piece end points (N + 1, 2) [m]; speed_mps : per piece (N,) [m/s]
-    energy_J : ``path_energy`` at these speeds (exact terrain, SPEC §7 sub-steps, the driven
+    energy_J : ``path_energy`` at these speeds (exact terrain, reference-model sub-steps, the driven
         profile with its ramps and stops when a World is given) [J]
     duration_s : mission time [s]
     iterations : IPOPT iterations; solve_seconds : wall-clock of the solve [s]
     pieces_energy_J : energy as the NLP sees it (one step per piece) [J]; ``energy_J`` re-
-        integrates with the SPEC §7 sub-steps when a World is given
+        integrates with the reference-model sub-steps when a World is given
     pieces_duration_s : mission time as the NLP sees it (constant speed per piece) [s]
     objective : the solver's own objective at its optimum: energy [J] for "energy", mission
         time [s] for "time" (the CasADi transcription, clip included)
@@ -313,7 +317,7 @@ def _piece_caps(problem: SpeedProblem) -> np.ndarray:
     return np.clip(cap, problem.v_min_mps, problem.v_max_mps)
 
 
-def speed_problem(ctx, pieces: PathPieces, objective: str = "energy",
+def speed_problem(ctx: Context, pieces: PathPieces, objective: str = "energy",
                   time_limit_s: float | None = None,
                   energy_budget_J: float | None = None) -> SpeedProblem:
     """The speed problem of a scenario's robot on ``pieces`` (limits from the scenario)."""

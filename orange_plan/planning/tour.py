@@ -806,11 +806,6 @@ def refine_legs(setup: TourSetup, nodes, seconds: float = BITSTAR_S,
     return replace(setup, roadmap=roadmap, to_home=to_home), _join(parts), len(replaced)
 
 
-def walk_xy(setup: TourSetup, nodes) -> np.ndarray:
-    """The drivable polyline of ``walk_vertices`` [m]."""
-    return setup.roadmap_xy_m[walk_vertices(setup, nodes)]
-
-
 def _leg(setup: TourSetup, a: int, b: int) -> np.ndarray:
     """Roadmap vertex ids of the leg from point a to point b (both ends included)."""
     pred = setup.predecessors[a]

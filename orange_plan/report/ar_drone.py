@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orange_plan.bench.identify import PREDICT_AT, accuracy_pct, bench_route
+from orange_plan.atomic import save_figure
 from orange_plan.context import load_context
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
@@ -33,6 +33,7 @@ from orange_plan.report.trials import (
     run_to_depletion,
     with_belief,
 )
+from orange_plan.sim.ranges import PREDICT_AT, accuracy_pct, lap_route
 
 SCENARIO = "ar_drone_wind"
 
@@ -56,7 +57,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
     """Per trial: true range and offline/online accuracy from both starting models."""
     ctx = load_context(Path(scenario_dir) / f"{SCENARIO}.toml")
     rng = np.random.default_rng([seed, 3])
-    route = bench_route(ctx)
+    route = lap_route(ctx)
     fitted, energy_factor = calibrate_on(ctx, calibration_runs(ctx, route, VARIATION, rng),
                                          "AR Drone calibration flight")
     advance(tick, CALIBRATION_RUNS)
@@ -128,8 +129,6 @@ def plot(rows: list[dict], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     summary = cells(rows)
     fig, ax = plt.subplots(figsize=(7, 4.8))

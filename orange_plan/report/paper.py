@@ -8,6 +8,7 @@ from pathlib import Path
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import InputError
+from orange_plan.examples import looked_in
 from orange_plan.report import ar_drone, real_data, rusti_v1, rusti_v2, wear
 from orange_plan.report.markdown import Section, write_report
 from orange_plan.report.trials import CALIBRATION_RUNS
@@ -71,7 +72,6 @@ def generate(out_dir: Path, scenario_dir: Path, data_dir: Path | None, trials: i
 
 def missing_data_note() -> str:
     """Why section 5 is absent: where the data sets were looked for, and the option."""
-    from orange_plan.examples import looked_in
 
     return ("the real data sets (BorealTC, TUM BMW i3) were not found (looked in "
             f"{looked_in('data')}); give `--data DIR`, the folder holding borealtc/ and "

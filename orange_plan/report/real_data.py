@@ -12,13 +12,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from orange_plan.bench.identify import (
-    PREDICT_AT,
-    calibration_benchmark,
-    count_runs,
-)
+from orange_plan.atomic import save_figure
+from orange_plan.bench.identify import calibration_benchmark, count_runs
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import stat
+from orange_plan.sim.ranges import PREDICT_AT
 
 DATASETS = ("husky_borealtc", "bmw_i3_tum")
 MODELS = {"a priori": "energy_error_prior_pct", "calibrated (held out)": "energy_error_pct",
@@ -98,8 +96,6 @@ def plot(rows: list[dict], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
-
-    from orange_plan.atomic import save_figure
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8), gridspec_kw={"width_ratios": [1, 3]})
     colours = ("tab:red", "tab:blue", "tab:cyan")

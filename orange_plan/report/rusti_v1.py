@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from orange_plan.atomic import save_figure
 from orange_plan.context import load_context
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
@@ -133,8 +134,6 @@ def plot(rows: list[dict], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     summary = cells(rows)
     fig, axes = plt.subplots(1, len(COURSES), figsize=(11, 4), sharey=True)

@@ -3,7 +3,7 @@
 The paper's grid: grass, asphalt and tile; b1 = 1500 mAh and b2 = 2200 mAh packs; v1 = 0.544
 and v2 = 0.952 m/s (its figure, not in the source; no number in the text). The twelve shipped
 scenarios ``rusti_v2_<surface>_<pack>mAh_v<speed>`` are driven on the a-priori probe course
-of ``bench online`` (``bench.identify.bench_route``: out-and-back rays from home, one lap at
+of ``bench online`` (``sim.ranges.lap_route``: out-and-back rays from home, one lap at
 most 10 % of the range) until the battery is spent.
 
 Estimates: the generalised offline ORangE (Eq. 11, path integral on the course) a priori and
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orange_plan.bench.identify import bench_route
+from orange_plan.atomic import save_figure
 from orange_plan.context import load_context
 from orange_plan.report import rusti_v1
 from orange_plan.report.markdown import Section, Table
@@ -35,6 +35,7 @@ from orange_plan.report.trials import (
     run_to_depletion,
     with_belief,
 )
+from orange_plan.sim.ranges import lap_route
 
 SURFACES = ("grass", "asphalt", "tile")
 PACKS = {"b1": "1500mAh", "b2": "2200mAh"}
@@ -67,7 +68,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
         rng = np.random.default_rng([seed, 2, k])
         surface_bias = {"rolling_kg": SURFACE_ROLLING[surface]}
         cal_ctx = load_context(Path(scenario_dir) / f"{scenario_name(surface, 'b1', 'v1')}.toml")
-        cal_route = bench_route(cal_ctx)
+        cal_route = lap_route(cal_ctx)
         fitted, energy_factor = calibrate_on(
             cal_ctx, calibration_runs(cal_ctx, cal_route, VARIATION, rng, surface_bias),
             f"{surface} calibration drive")
@@ -75,7 +76,7 @@ def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
         for pack in PACKS:
             for speed in SPEEDS:
                 ctx = load_context(Path(scenario_dir) / f"{scenario_name(surface, pack, speed)}.toml")
-                route = bench_route(ctx)
+                route = lap_route(ctx)
                 prior_m = course_range_m(ctx, route)
                 calibrated_m = course_range_m(with_belief(ctx, fitted, energy_factor), route)
                 for trial in range(trials):
@@ -133,8 +134,6 @@ def plot(rows: list[dict], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     summary = cells(rows)
     fig, axes = plt.subplots(1, len(SURFACES), figsize=(12, 4), sharey=True)

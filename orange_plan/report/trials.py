@@ -1,6 +1,6 @@
 """What the report's experiments share: truth draws, runs to depletion, range estimates.
 
-Range estimation error (the paper's measure, ``bench.identify.accuracy_pct``)::
+Range estimation error (the paper's measure, ``sim.ranges.accuracy_pct``)::
 
     error_pct = 100 |d_est - d_true| / d_true,     accuracy_pct = 100 - error_pct
 
@@ -23,11 +23,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from orange_plan.bench.identify import accuracy_pct, offline_range_m
 from orange_plan.context import Context
+from orange_plan.identify.calibrate import Calibrator
+from orange_plan.identify.online import OnlineEstimator, stream
+from orange_plan.sim.ranges import accuracy_pct, offline_range_m
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import SimResult, simulate
 from orange_plan.sim.truth import truth_from_dict
+from orange_plan.telemetry.recording import recording_from_frame
+from orange_plan.telemetry.state import recording_state
 
 
 @dataclass(frozen=True)
@@ -135,7 +139,7 @@ def with_belief(ctx: Context, model=None, energy_factor: float = 1.0,
     energy times ``energy_factor`` (a measured state of health), ``extra_cycles`` more charge
     cycles on the battery (its nominal fade, Eq. 3, applies to them).
 
-    The usable energy is linear in ``rated_energy_Wh`` (SPEC §7), so the factor goes there.
+    The usable energy is linear in ``rated_energy_Wh``, so the factor goes there.
     """
     battery = ctx.scenario.battery
     battery = replace(battery, rated_energy_Wh=battery.rated_energy_Wh * energy_factor,
@@ -168,8 +172,6 @@ def calibrate_on(ctx: Context, sims: list[SimResult], source: str) -> tuple[obje
 
     Returns (fitted EnergyModel, energy factor).
     """
-    from orange_plan.identify.calibrate import Calibrator
-    from orange_plan.telemetry.recording import recording_from_frame
 
     recs = [recording_from_frame(sim.frame, f"{source} {k}") for k, sim in enumerate(sims)]
     fitted = Calibrator().fit(recs, ctx).model_
@@ -224,9 +226,6 @@ def online_ranges_m(belief: Context, sim: SimResult, fractions, batch_s: float =
 
     Returns (list of range estimates [m], the estimator after the last fraction).
     """
-    from orange_plan.identify.online import OnlineEstimator, stream
-    from orange_plan.telemetry.recording import recording_from_frame
-    from orange_plan.telemetry.state import recording_state
 
     rec = recording_from_frame(sim.frame, f"{belief.scenario.name} run")
     state = recording_state(rec, belief.world, conditions=belief.conditions)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orange_plan.bench.identify import bench_route
+from orange_plan.atomic import save_figure
 from orange_plan.context import load_context
 from orange_plan.report.markdown import Section, Table
 from orange_plan.report.trials import (
@@ -43,6 +43,7 @@ from orange_plan.report.trials import (
     run_to_depletion,
     with_belief,
 )
+from orange_plan.sim.ranges import lap_route
 
 SCENARIO = "rusti_v2_asphalt_1500mAh_v0952"
 MISSIONS = 300
@@ -98,7 +99,7 @@ def count(trials: int) -> int:
 def run(scenario_dir: Path, trials: int, seed: int, tick=None) -> list[dict]:
     """Each trial is one robot flown through ``missions()``; one row per simulated mission."""
     base = load_context(Path(scenario_dir) / f"{SCENARIO}.toml")
-    route = bench_route(base)
+    route = lap_route(base)
     k1 = base.scenario.battery.k1_per_cycle
     rows = []
     for trial in range(trials):
@@ -182,8 +183,6 @@ def plot(rows: list[dict], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     summary = cells(rows)
     n = np.array([c["mission"] for c in summary])

@@ -44,6 +44,7 @@ from orange_plan.service.missions import (
 from orange_plan.service.scenarios import ScenarioLibrary
 from orange_plan.service.store import Store
 from orange_plan.service.worker import PlannerBusy, PlannerFailed, Planners
+from orange_plan.telemetry.recording import NUMERIC_COLUMNS, TEXT_COLUMNS
 
 TOKEN_ENV = "ORANGE_PLAN_TOKEN"
 STATIC = Path(str(resources.files("orange_plan.service") / "static"))
@@ -105,14 +106,14 @@ class MissionCreate(BaseModel):
     scenario: str | None = Field(None, max_length=100,
                                  description="name of a scenario in scenarios/ (no folders)")
     scenario_toml: str | None = Field(
-        None, description="a scenario's TOML text (SPEC §2); its 'map' names a map in maps/, "
+        None, description="a scenario's TOML text; its 'map' names a map in maps/, "
                           "e.g. 'lab_box' or '../maps/lab_box.geojson'")
     n_vertices: int = Field(3000, ge=50, le=MAX_ROADMAP_VERTICES, description="roadmap vertices")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="roadmap random seed")
 
 
 class TelemetryBatch(BaseModel):
-    """Telemetry samples (SPEC §3 columns), time-ordered, newer than any acknowledged one."""
+    """Telemetry samples (recording columns (docs/formats.md)), time-ordered, newer than any acknowledged one."""
 
     model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"samples": [
         {"t_s": 0.0, "power_W": 12.0, "x_m": 1.0, "y_m": 1.0},
@@ -216,7 +217,7 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
         description=(
             "Mid-mission replanning for battery-powered robots (ORangE energy model). Create a "
             "mission from a scenario, post telemetry batches, read the return-home decision, "
-            "post map updates, replan, fetch the plan (SPEC §4 GeoJSON). The operator page is "
+            "post map updates, replan, fetch the plan (plan GeoJSON (docs/formats.md)). The operator page is "
             "at `/`. When the server has a token (`ORANGE_PLAN_TOKEN`), every `/missions...` "
             "and `/scenarios` request needs `Authorization: Bearer <token>`."),
     )
@@ -328,7 +329,7 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
 
     @app.get("/missions/{mission_id}/map", tags=["missions"], dependencies=auth)
     def get_map(mission_id: str):
-        """The mission's map (SPEC §1 kinds) with the posted updates (``update: true``)."""
+        """The mission's map (feature kinds: docs/formats.md) with the posted updates (``update: true``)."""
         return reply(map_geojson(registry.get(mission_id)), media_type="application/geo+json")
 
     @app.post("/missions/{mission_id}/replan", tags=["missions"], dependencies=auth)
@@ -341,7 +342,7 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
 
     @app.get("/missions/{mission_id}/plan", tags=["missions"], dependencies=auth)
     def get_plan(mission_id: str):
-        """The current plan as SPEC §4 GeoJSON."""
+        """The current plan as plan GeoJSON (docs/formats.md)."""
         live = registry.get(mission_id)
         with live.lock:
             doc = live.session.plan.to_geojson()
@@ -358,13 +359,12 @@ def create_app(db: str | Path = "orange_plan.sqlite", *, token: str | None = Non
 
 
 MAX_ABS_VALUE = 1e12
-"""No SPEC §3 quantity is larger in magnitude (beyond it, a stamp is epoch ms, a position is
+"""No recording quantity (docs/formats.md) is larger in magnitude (beyond it, a stamp is epoch ms, a position is
 not in a local metric frame); NaN passes here and the session reports it."""
 
 
 def check_samples(samples: list[dict]) -> None:
-    """Types of the SPEC §3 columns; deeper checks (order, gaps) are the session's."""
-    from orange_plan.telemetry.recording import NUMERIC_COLUMNS, TEXT_COLUMNS
+    """Types of the recording columns (docs/formats.md); deeper checks (order, gaps) are the session's."""
 
     for i, sample in enumerate(samples):
         if "t_s" not in sample:

@@ -27,6 +27,7 @@ import threading
 import time
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
@@ -37,6 +38,9 @@ from orange_plan.service.limits import Limits
 from orange_plan.service.scenarios import ScenarioLibrary, ScenarioSource
 from orange_plan.service.store import MissionRow, Store
 from orange_plan.service.worker import Planners
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 log = logging.getLogger("orange_plan.service")
 
@@ -58,7 +62,7 @@ class MissionUnavailable(OrangeError):
 
 def plan_first(library: ScenarioLibrary, source: ScenarioSource, n_vertices: int, seed: int,
                sessions) -> dict:
-    """In a planning worker: a new mission's first plan (SPEC §4 GeoJSON)."""
+    """In a planning worker: a new mission's first plan (plan GeoJSON (docs/formats.md))."""
     session = sessions.new(library.context(source), n_vertices=n_vertices, seed=seed)
     return session.plan.to_geojson()
 
@@ -73,13 +77,13 @@ class SessionKind:
     """How sessions are made and restored (tests may pass another)."""
 
     @staticmethod
-    def new(ctx, *, n_vertices: int, seed: int):
+    def new(ctx: Context, *, n_vertices: int, seed: int):
         from orange_plan.planning.session import MissionSession
 
         return MissionSession(ctx, n_vertices=n_vertices, seed=seed, **_options())
 
     @staticmethod
-    def restore(ctx, state: dict):
+    def restore(ctx: Context, state: dict):
         from orange_plan.planning.session import MissionSession
 
         return MissionSession.from_state(ctx, state)

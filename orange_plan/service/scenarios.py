@@ -14,7 +14,10 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from orange_plan.errors import InputError, ScenarioError
+from orange_plan.context import context_of
+from orange_plan.errors import InputError, ScenarioError, close_match_hint
+from orange_plan.examples import find_dir
+from orange_plan.scenario import scenario_from_dict
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 """A scenario or map name: letters, digits, ``_ . -``; no path separators."""
@@ -34,7 +37,6 @@ class ScenarioSource:
 def default_folder(kind: str) -> Path:
     """``scenarios/`` or ``maps/`` by the examples' look-up rule (the working folder, then the
     installed examples); the working folder's when there is none (a library with no names)."""
-    from orange_plan.examples import find_dir
 
     return find_dir(kind) or Path.cwd() / kind
 
@@ -77,8 +79,6 @@ class ScenarioLibrary:
                                  "'_', '.', '-'; no folders)")
             path = self.scenarios_dir / f"{name}.toml"
             if not path.is_file():
-                from orange_plan.errors import close_match_hint
-
                 raise InputError(f"no scenario named {name!r} in scenarios/"
                                  + close_match_hint(name, self.names()))
             return ScenarioSource(name, path.read_text(encoding="utf-8"), inline=False)
@@ -94,8 +94,6 @@ class ScenarioLibrary:
         InputError
             Bad TOML, a map outside maps/, or anything ``load_context`` refuses.
         """
-        from orange_plan.context import context_of
-        from orange_plan.scenario import scenario_from_dict
 
         where = "scenario_toml" if source.inline else f"scenarios/{source.name}.toml"
         data = parse_toml(source.toml_text, where)
@@ -120,8 +118,6 @@ class ScenarioLibrary:
                                 "are not served")
         path = (self.maps_dir / name).resolve()
         if path.parent != self.maps_dir or not path.is_file():
-            from orange_plan.errors import close_match_hint
-
             known = [p.stem for p in self.maps_dir.glob("*.geojson")]
             raise ScenarioError(f"{where}: no map {value!r} in maps/"
                                 + close_match_hint(Path(name).stem, known))

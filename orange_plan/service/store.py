@@ -2,7 +2,7 @@
 
 One row per mission (its scenario TOML text, session options and first plan) and one row per
 acknowledged change, in order: a ``telemetry`` batch (the samples as posted), a ``map``
-update (the posted geometries), a ``plan`` adopted by a replan (its SPEC §4 GeoJSON). A request
+update (the posted geometries), a ``plan`` adopted by a replan (its plan GeoJSON (docs/formats.md)). A request
 is acknowledged only after its transaction has committed, so a restart loses nothing that a
 client was told succeeded. The database runs in WAL mode with ``synchronous=FULL``.
 

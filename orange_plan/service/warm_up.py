@@ -14,16 +14,16 @@ import logging
 import tempfile
 from pathlib import Path
 
+from orange_plan.bench.maps import write_world
+from orange_plan.context import load_context
+from orange_plan.service.missions import SessionKind
+
 log = logging.getLogger("orange_plan.service")
 
 
 def warm_up() -> None:
     """Plan a small mission as the service would (same session options)."""
     import shapely
-
-    from orange_plan.bench.maps import write_world
-    from orange_plan.context import load_context
-    from orange_plan.service.missions import SessionKind
 
     with tempfile.TemporaryDirectory(prefix="orange-plan-warm-up-") as folder:
         scenario = write_world(Path(folder), "warm_up", 40.0, 30.0,

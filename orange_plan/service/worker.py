@@ -12,7 +12,7 @@ planner imported already, so a child starts in milliseconds) under the request's
   ``Limits.plan_seconds`` is answered 503 (try again later).
 
 A request over its budget is answered 422 with one line naming the budget; the server and
-its other missions are untouched. The child answers with a plan's GeoJSON (SPEC §4) or the
+its other missions are untouched. The child answers with a plan's GeoJSON or the
 error the planner raised (``InputError``: 422, as when planning in the server).
 """
 

@@ -28,11 +28,15 @@ the planner assumes. ``Truth`` objects are what ``sim.simulator.simulate`` (and
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.sim.truth import Truth, Wind
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 
 @dataclass(frozen=True)
@@ -91,7 +95,7 @@ def run_factors(rel_sd: float, n: int, rng) -> np.ndarray:
     return np.maximum(m, 1e-3)
 
 
-def calibration_truths(ctx, n: int, seed: int = 0,
+def calibration_truths(ctx: Context, n: int, seed: int = 0,
                        discrepancy: Discrepancy = DISCREPANCY) -> list[Truth]:
     """``n`` truths within the calibration uncertainty of ``ctx.model`` (seeded).
 
@@ -129,7 +133,7 @@ def calibration_truths(ctx, n: int, seed: int = 0,
             for c, m in zip(draws, factors)]
 
 
-def truth_multipliers(ctx, truth: Truth) -> dict[str, float]:
+def truth_multipliers(ctx: Context, truth: Truth) -> dict[str, float]:
     """theta_true / theta for each non-zero coefficient (what a truth changes) [-]."""
     return {k: v / ctx.model.coefficient(k) for k, v in truth.coefficients.items()
             if ctx.model.coefficient(k) != 0}

@@ -1,4 +1,4 @@
-"""Routes to drive: a plan GeoJSON's tour (SPEC §4) or a CSV of x_m, y_m[, speed_mps] waypoints."""
+"""Routes to drive: a plan GeoJSON's tour or a CSV of x_m, y_m[, speed_mps] waypoints."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import InputError
-from orange_plan.paths import csv_delimiter_hint, read_json, require_file
+from orange_plan.files import csv_delimiter_hint, read_json, require_file
+from orange_plan.planning.plan import read_tour
 
 PLAN_SUFFIXES = (".geojson", ".json")
 """File endings read as a plan GeoJSON; anything else is read as a route CSV."""
@@ -80,29 +81,10 @@ def load_route(path: str | Path) -> Route:
 
 
 def _from_plan(path: Path):
-    data = read_json(path, "plan GeoJSON")
-    features = data.get("features") if isinstance(data, dict) else None
-    tours = [f for f in features or [] if isinstance(f, dict)
-             and (f.get("properties") or {}).get("kind") == "tour"]
-    if not tours:
-        raise InputError(f"{path}: no feature with kind = 'tour' (a plan's tour LineString)")
-    geom = tours[0].get("geometry") or {}
-    if geom.get("type") != "LineString":
-        raise InputError(f"{path}: the tour must be a LineString, got {geom.get('type')!r}")
-    try:
-        xy = np.asarray([c[:2] for c in geom.get("coordinates", [])], dtype=float).reshape(-1, 2)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: tour coordinates must be numbers") from None
-    speed = (tours[0].get("properties") or {}).get("speed_mps")
-    if speed is None:
-        return xy, np.full(len(xy), np.nan)
-    try:
-        speed = np.asarray(speed, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: tour speed_mps must be numbers") from None
-    if speed.shape != (len(xy),):
-        raise InputError(f"{path}: tour speed_mps has {speed.size} values for {len(xy)} vertices")
-    return xy, speed
+    """The tour's vertices and speeds (NaN where the file has none) of a plan file."""
+    xy, arrays = read_tour(read_json(path, "plan GeoJSON"), str(path))
+    speed = arrays["speed_mps"]
+    return xy, np.full(len(xy), np.nan) if speed is None else speed
 
 
 def _from_csv(path: Path):

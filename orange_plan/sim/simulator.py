@@ -1,4 +1,4 @@
-"""Mission simulator: drive a route under a truth model and produce a recording (SPEC §3).
+"""Mission simulator: drive a route under a truth model and produce a recording.
 
 The power at every sample is the scenario model's own ``EnergyModel.power_W`` evaluated on
 the simulated motion state (no physics is re-typed here). The simulator adds only the
@@ -13,14 +13,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
 from orange_plan.errors import InputError, close_match_hint
-from orange_plan.model_builder import with_payload
 from orange_plan.physics.model import EnergyModel
+from orange_plan.physics.model_builder import with_payload
 from orange_plan.physics.pathcost import subdivide
 from orange_plan.physics.profile import (
     SAMPLE_DT_S,
@@ -34,6 +35,9 @@ from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.sim.route import Route
 from orange_plan.sim.truth import Truth, Wind
 from orange_plan.telemetry.derive import duration_s
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 MAX_RATE_HZ = 1000.0
 """Highest recording rate: beyond it a long run's table no longer fits in memory (1e5 Hz
@@ -49,7 +53,7 @@ class SimResult:
 
     Attributes
     ----------
-    frame : the recording (SPEC §3 columns)
+    frame : the recording (recording columns (docs/formats.md))
     energy_J : true battery energy drawn (without recording noise) [J]
     energy_available_J : the truth's usable energy (scenario E_avail x capacity_factor) [J]
     distance_m : distance travelled along the path [m]
@@ -113,7 +117,7 @@ def _roughness(rng, length_m: float, std: float, corr_m: float):
     return grid, lfilter([1.0], [1.0, -phi], noise)
 
 
-def simulate(ctx, route: Route, truth: Truth | None = None, seed: int = 0,
+def simulate(ctx: Context, route: Route, truth: Truth | None = None, seed: int = 0,
              sample_rate_Hz: float = 1.0 / SAMPLE_DT_S, to_depletion: bool = False,
              max_duration_s: float = 172_800.0, energy_start_J: float = 0.0) -> SimResult:
     """Drive ``route`` in the scenario's world under ``truth`` and record it.

@@ -71,7 +71,7 @@ class Wind:
 
     @property
     def mean_xy_mps(self) -> tuple[float, float]:
-        """Mean wind vector (x east, y north) [m/s] (SPEC §7 convention)."""
+        """Mean wind vector (x east, y north) [m/s] (reference-model convention)."""
         return wind_xy_mps(self.mean_mps, self.from_deg)
 
 

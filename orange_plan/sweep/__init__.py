@@ -1,1 +1,1 @@
-"""Fleet-scale sweeps and Monte Carlo on Dask (``orange-plan sweep``, issue #11)."""
+"""Fleet-scale sweeps and Monte Carlo on Dask (``orange-plan sweep``)."""

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from orange_plan.sweep.flight import _fmt, stranding_upper_bound
+from orange_plan.atomic import save_figure
+from orange_plan.sim.flight import stranding_upper_bound
 
 
 def summary_rows(rows: pd.DataFrame, grid_keys) -> list[dict]:
@@ -29,6 +30,13 @@ def summary_rows(rows: pd.DataFrame, grid_keys) -> list[dict]:
                     "energy_left_at_home_kJ": _median(home / 1e3),
                     "run_s": _median(sub["run_s"])})
     return out
+
+
+def cell(value, spec: str) -> str:
+    """A number for a table cell, formatted by ``spec``; ``-`` for a missing or non-finite one."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, spec)
 
 
 def _median(values) -> float | None:
@@ -66,8 +74,8 @@ def summary_table(summary: list[dict], grid_keys, title: str):
     for r in summary:
         t.add_row(*(_show(r[k]) for k in keys), *(str(r[k]) for _, k in counts),
                   str(r["runs"]), str(r["strandings"]),
-                  _fmt(r["stranding_upper95"], ".1%"), _fmt(r["coverage_m2"], ",.0f"),
-                  _fmt(r["energy_left_at_home_kJ"], ".2f"), _fmt(r["run_s"], ".2f"))
+                  cell(r["stranding_upper95"], ".1%"), cell(r["coverage_m2"], ",.0f"),
+                  cell(r["energy_left_at_home_kJ"], ".2f"), cell(r["run_s"], ".2f"))
     return t
 
 
@@ -88,8 +96,6 @@ def sweep_figure(summary: list[dict], grid_keys, title: str, path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from orange_plan.atomic import save_figure
 
     x = x_key(summary, grid_keys)
     others = [k for k in ("scenario", *grid_keys) if k != x]

@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from orange_plan.errors import InputError, close_match_hint
-from orange_plan.paths import file_problem
+from orange_plan.files import file_problem
+from orange_plan.scenario import read_toml, scenario_from_dict
+from orange_plan.sim.truth import truth_from_dict
 
 TOP_KEYS = ("name", "scenarios", "seeds", "truth", "vertices", "sample_rate_Hz", "grid")
 TRUTH_KINDS = ("calibration", "model")
@@ -80,7 +82,6 @@ def load_sweep(path: str | Path) -> Sweep:
         match), a missing scenario or truth file, a bad seed list, a grid key the scenarios do
         not have or a grid value they refuse, bad run settings.
     """
-    from orange_plan.scenario import read_toml
 
     path = Path(path)
     data = read_toml(path, "sweep", InputError)
@@ -122,7 +123,6 @@ def run_id(inputs: Mapping) -> str:
 
 def _scenario_files(value, path: Path) -> list[tuple[str, Path, dict]]:
     """(as written, resolved path, parsed TOML with ``map`` absolute) per scenario."""
-    from orange_plan.scenario import read_toml
 
     where = str(path)
     if (not isinstance(value, list) or not value
@@ -171,9 +171,6 @@ def _seeds(value, where: str) -> list[int]:
 
 
 def _truth(value, path: Path) -> str | dict:
-    from orange_plan.scenario import read_toml
-    from orange_plan.sim.truth import truth_from_dict
-
     where = str(path)
     if not isinstance(value, str) or not value:
         raise InputError(f"{where}: truth must be one of {', '.join(TRUTH_KINDS)} or the path "
@@ -230,7 +227,6 @@ def _grid(value, where: str) -> dict[str, list]:
 
 def _apply(scenario: dict, point, scenario_path: Path, where: str) -> dict:
     """The scenario with the grid point set, validated like a scenario file."""
-    from orange_plan.scenario import scenario_from_dict
 
     data = copy.deepcopy(scenario)
     for dotted, value in point:

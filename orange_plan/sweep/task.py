@@ -1,6 +1,6 @@
 """One sweep run on a worker: plan a tour, fly it in the simulator, score it (one row).
 
-The scoring is ``sweep.flight.fly_open_loop``'s (the first tour flown as planned): coverage is
+The scoring is ``sim.flight.fly_open_loop``'s (the first tour flown as planned): coverage is
 the sensed area up to the battery's exhaustion, a run is stranded when the true energy drawn
 exceeds the truth's usable energy before home or when it does not end home.
 """
@@ -14,7 +14,13 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
+from orange_plan.context import Context, context_of
 from orange_plan.errors import InputError, OrangeError
+from orange_plan.planning.tour import plan_tour
+from orange_plan.scenario import scenario_from_dict
+from orange_plan.sim.flight import fly_open_loop
+from orange_plan.sim.perturb import calibration_truths
+from orange_plan.sim.truth import Truth, truth_from_dict
 from orange_plan.sweep.spec import RunSpec
 
 RESULT_COLUMNS = ("coverage_m2", "planned_coverage_m2", "energy_available_J",
@@ -59,11 +65,6 @@ def _cell(value):
 
 
 def _plan_fly_score(run: RunSpec) -> dict:
-    from orange_plan.context import context_of
-    from orange_plan.planning.tour import plan_tour
-    from orange_plan.scenario import scenario_from_dict
-    from orange_plan.sweep.flight import fly_open_loop
-
     ctx = context_of(scenario_from_dict(run.scenario_data, Path(run.scenario_file)))
     truth = _truth(ctx, run)
     usable_J = ctx.scenario.battery.usable_J * truth.capacity_factor
@@ -86,10 +87,7 @@ def _plan_fly_score(run: RunSpec) -> dict:
             "plan_s": t1 - t0, "fly_s": time.perf_counter() - t1}
 
 
-def _truth(ctx, run: RunSpec):
-    from orange_plan.sim.perturb import calibration_truths
-    from orange_plan.sim.truth import Truth, truth_from_dict
-
+def _truth(ctx: Context, run: RunSpec):
     if run.truth == "calibration":
         return calibration_truths(ctx, 1, seed=run.seed)[0]
     if run.truth == "model":

@@ -1,4 +1,4 @@
-"""Telemetry: the recording table (SPEC §3), its checks and importers from robot logs."""
+"""Telemetry: the recording table, its checks and importers from robot logs."""
 
 from orange_plan.telemetry.recording import (
     DataIssue,

@@ -1,4 +1,4 @@
-"""Recordings: the telemetry table of SPEC §3, loaded, checked, cleaned and completed.
+"""Recordings: the telemetry table of the recording format (docs/formats.md), loaded, checked, cleaned and completed.
 
 (The time-series maths of rule 13 is ``telemetry.derive``; a recording's MotionState is
 ``telemetry.state.recording_state``.)
@@ -15,9 +15,9 @@ Rules
    or a table without data rows is refused (RecordingError).
 2. ``missing_column``: ``t_s``; ``power_W`` or both ``voltage_V`` and ``current_A``;
    ``x_m`` and ``y_m``, or ``v_mps``. A missing one is refused, naming it.
-3. ``text``: a value that is not a number in a numeric column of SPEC §3 is refused, naming
+3. ``text``: a value that is not a number in a numeric column of the recording format (docs/formats.md) is refused, naming
    the column, the first bad row and the value (empty cells are missing values, not text).
-3b. ``physical_range``: an infinite value in any numeric column of SPEC §3, or a finite one
+3b. ``physical_range``: an infinite value in any numeric column of the recording format (docs/formats.md), or a finite one
    outside that column's physical range (``PHYSICAL_RANGES``, table below), is refused with
    one line naming the column, the value, its first row and the allowed range: no sensor
    reads it, so the file is corrupt or in other units, and a value like 1e308 would only
@@ -41,7 +41,7 @@ Rules
    z_m                 [-1.2e4, 1e5] m      the Mariana Trench to the edge of space
    ambient_C,          [-90, 150] C         record cold -89 C; a battery or a desert surface
    battery_C                                stays below 100 C
-   soc                 [0, 1]               the SPEC's fraction (a percent is refused with a
+   soc                 [0, 1]               the documented fraction (a percent is refused with a
                                             hint to divide by 100)
    wind_mps            [-150, 150] m/s      record gust 113 m/s (either sign tolerated)
    wind_from_deg       [-3600, 3600] deg    any finite direction: it wraps, ten turns at most
@@ -94,7 +94,7 @@ import pandas as pd
 
 from orange_plan.atomic import atomic_path
 from orange_plan.errors import RecordingError
-from orange_plan.paths import csv_delimiter_hint, require_file
+from orange_plan.files import csv_delimiter_hint, require_file
 from orange_plan.telemetry.derive import (
     STILL_SPEED_MPS,
     derivative,
@@ -110,7 +110,7 @@ SPEC_COLUMNS = (
     "yaw_rate_radps", "accel_mps2", "soc", "ambient_C", "battery_C", "wind_mps",
     "wind_from_deg", "payload_kg", "surface", "sensor_rate_Hz",
 )
-"""SPEC §3 columns in their documented order."""
+"""recording columns (docs/formats.md) in their documented order."""
 
 TEXT_COLUMNS = ("surface",)
 NUMERIC_COLUMNS = tuple(c for c in SPEC_COLUMNS if c not in TEXT_COLUMNS)
@@ -144,7 +144,7 @@ PHYSICAL_RANGES = {
     "payload_kg": (-1e6, 1e6, "kg"),
     "sensor_rate_Hz": (0.0, 1e6, "Hz"),
 }
-"""Physical range (low, high, unit) of each numeric SPEC §3 column but ``t_s`` (rule 4):
+"""Physical range (low, high, unit) of each numeric the recording format (docs/formats.md) column but ``t_s`` (rule 4):
 rule 3b's table, with why each is generous."""
 
 
@@ -177,7 +177,7 @@ class DataIssue:
 
 @dataclass(frozen=True, eq=False)  # eq=False: comparing DataFrames with == is ambiguous
 class Recording:
-    """A cleaned, time-ordered recording (SPEC §3 columns plus derived channels).
+    """A cleaned, time-ordered recording (recording columns (docs/formats.md) plus derived channels).
 
     Attributes
     ----------
@@ -288,7 +288,7 @@ def _read_table(path: Path) -> pd.DataFrame:
 
 
 def write_recording(recording: Recording | pd.DataFrame, path: str | Path) -> Path:
-    """Write a recording (or a frame in SPEC §3 columns) atomically as CSV or Parquet.
+    """Write a recording (or a frame in recording columns (docs/formats.md)) atomically as CSV or Parquet.
 
     The table goes to a temporary file in the same folder, then replaces ``path`` in one
     step, so a reader never sees half a file.
@@ -312,7 +312,7 @@ def recording_from_frame(df: pd.DataFrame, source: str = "<frame>") -> Recording
 
     Parameters
     ----------
-    df : table with SPEC §3 columns (not modified)
+    df : table with recording columns (docs/formats.md) (not modified)
     source : label used in messages and kept on the Recording
 
     Returns
@@ -601,7 +601,7 @@ def _derive(cols: Columns, pieces: list[slice], issues: list, source: str) -> No
 
 
 def _ordered(data: dict) -> dict:
-    """SPEC §3 columns first, in their documented order, then the others as they came."""
+    """recording columns (docs/formats.md) first, in their documented order, then the others as they came."""
     first = [c for c in SPEC_COLUMNS if c in data]
     return {c: data[c] for c in first + [c for c in data if c not in first]}
 

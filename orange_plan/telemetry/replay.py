@@ -49,7 +49,7 @@ class Replay:
     energy_predicted_sd_J: float
 
     def to_dict(self) -> dict:
-        """SPEC §5 keys of ``predict --json`` plus the sample count and mean powers."""
+        """keys (docs/json.md) of ``predict --json`` plus the sample count and mean powers."""
         return {
             "energy_recorded_J": self.energy_recorded_J,
             "energy_predicted_J": self.energy_predicted_J,

@@ -63,7 +63,7 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
       average over ``grade_window_m``, differentiated; ``sin_t = s/sqrt(1+s^2)``. No
       ``z_m``: flat.
     * Direction: heading of positions (held while standing); no positions: (1, 0).
-    * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological, SPEC §7), else the
+    * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological: docs/guide/range.md), else the
       world's wind, else none.
     * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
       looked up among the map's surfaces (unknown labels: default); else the default.

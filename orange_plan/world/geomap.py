@@ -1,4 +1,4 @@
-"""Map GeoJSON (SPEC §1) -> a validated, frozen Map."""
+"""Map GeoJSON -> a validated, frozen Map."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from shapely.geometry import MultiPolygon, Point, Polygon, shape
 from shapely.validation import explain_validity
 
 from orange_plan.errors import MapError, close_match_hint
-from orange_plan.paths import read_json, require_file
+from orange_plan.files import read_json, require_file
 from orange_plan.world.raster import ElevationRaster, load_elevation
 
 KINDS = {"boundary", "obstacle", "no_go", "surface", "home"}

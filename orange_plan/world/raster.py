@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from orange_plan.errors import MapError
+from orange_plan.files import file_problem
 from orange_plan.limits import MAX_ELEVATION_CELLS
-from orange_plan.paths import file_problem
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class ElevationRaster:
     def elevation_at(self, x_m, y_m) -> np.ndarray:
         """Bilinear elevation between cell centres, constant over the outer half cell [m].
 
-        Accepts arrays of any (broadcastable) shape and returns that shape (SPEC §7).
+        Accepts arrays of any (broadcastable) shape and returns that shape.
         """
         x, y = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
         rows, cols = self.z_m.shape

@@ -64,8 +64,9 @@ update raises the map's ``version``; what was computed for a map (the return-hom
 the planner's setup, "the map changed since the plan") is keyed by that version.
 """
 
+from orange_plan.planning.plan import plan_from_geojson
 from orange_plan.planning.session.decision import ACTIONS, DEPARTURE_Z, FLAGS, Decision
-from orange_plan.planning.session.events import STATE_VERSION, plan_from_geojson
+from orange_plan.planning.session.events import STATE_VERSION
 from orange_plan.planning.session.facade import MissionSession
 from orange_plan.planning.session.intake import CONTEXT_ROWS
 

@@ -15,7 +15,6 @@ import math
 import numpy as np
 import pandas as pd
 import shapely
-from shapely.geometry import shape
 
 from orange_plan.errors import InputError
 from orange_plan.planning.plan import Plan
@@ -80,39 +79,6 @@ def replay_events(session, events) -> None:
             session.adopt_stored_plan(event["plan"])
         else:
             raise InputError(f"session state: unknown event {sorted(event)}")
-
-
-def plan_from_geojson(data: dict) -> Plan:
-    """A Plan from its SPEC §4 GeoJSON (``Plan.to_geojson``).
-
-    Raises
-    ------
-    InputError
-        No tour feature, or per-vertex arrays of the wrong length.
-    """
-    features = data.get("features", []) if isinstance(data, dict) else []
-    tour = next((f for f in features if f.get("properties", {}).get("kind") == "tour"), None)
-    if tour is None:
-        raise InputError("plan: no feature with kind = 'tour'")
-    props = tour["properties"]
-    xy = np.asarray(tour["geometry"]["coordinates"], float).reshape(-1, 2)
-    arrays = {}
-    for key in ("t_s", "speed_mps", "energy_used_J", "energy_to_home_J", "reserve_J",
-                "margin_J"):
-        values = np.asarray(props.get(key, np.zeros(len(xy))), float)
-        if values.shape != (len(xy),):
-            raise InputError(f"plan: tour {key} has {values.size} values for {len(xy)} vertices")
-        arrays[key] = values
-    waypoints = [f["geometry"]["coordinates"] for f in features
-                 if f.get("properties", {}).get("kind") == "waypoint"]
-    covered = next((shape(f["geometry"]) for f in features
-                    if f.get("properties", {}).get("kind") == "covered"), None)
-    rest = next((f["geometry"]["coordinates"] for f in features
-                 if f.get("properties", {}).get("kind") == "continuation"), None)
-    continuation = None if rest is None else np.asarray(rest, float).reshape(-1, 2)
-    return Plan(xy, waypoints_xy_m=np.asarray(waypoints, float).reshape(-1, 2), covered=covered,
-                summary=dict(data.get("summary", {})), continuation_xy_m=continuation,
-                **arrays)
 
 
 def _records(frame: pd.DataFrame) -> dict:

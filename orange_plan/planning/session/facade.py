@@ -19,16 +19,11 @@ from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS
 from orange_plan.physics.pathcost import path_energy
 from orange_plan.planning.paths import distinct_vertices
-from orange_plan.planning.plan import Plan, StartState
+from orange_plan.planning.plan import Plan, StartState, plan_from_geojson
 from orange_plan.planning.reach import prepare_reach, way_home
 from orange_plan.planning.reserve import reserve_from
 from orange_plan.planning.session.decision import Decision, Home, HomingState, decide
-from orange_plan.planning.session.events import (
-    EventLog,
-    check_state,
-    plan_from_geojson,
-    replay_events,
-)
+from orange_plan.planning.session.events import EventLog, check_state, replay_events
 from orange_plan.planning.session.intake import Intake, validated_batch
 from orange_plan.world.geomap import keep_out_polygon
 

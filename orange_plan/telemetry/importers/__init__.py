@@ -1,4 +1,4 @@
-"""Importers: robot logs and data sets -> the recording table of SPEC §3.
+"""Importers: robot logs and data sets -> the recording table of the recording format (docs/formats.md).
 
 One module per format, each with ``read_<format>(path) -> pandas.DataFrame``. ``FORMATS``
 maps the ``--format`` names to readers; ``guess_format`` picks one from the file.

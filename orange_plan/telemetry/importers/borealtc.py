@@ -55,7 +55,7 @@ def is_borealtc(path: Path) -> bool:
 
 
 def read_borealtc(path: str | Path) -> pd.DataFrame:
-    """Read one BorealTC run (the ``pro_NN.csv`` file) into SPEC §3 columns.
+    """Read one BorealTC run (the ``pro_NN.csv`` file) into recording columns (docs/formats.md).
 
     Raises
     ------

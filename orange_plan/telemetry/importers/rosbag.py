@@ -33,12 +33,12 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 
 
 def read_rosbag1(path: str | Path) -> pd.DataFrame:
-    """Read a ROS 1 ``.bag`` into SPEC §3 columns (module docstring: mapping and grid)."""
+    """Read a ROS 1 ``.bag`` into recording columns (docs/formats.md) (module docstring: mapping and grid)."""
     return _read_bag(Path(path))
 
 
 def read_rosbag2(path: str | Path) -> pd.DataFrame:
-    """Read a ROS 2 bag (directory, ``.db3`` or ``.mcap``) into SPEC §3 columns."""
+    """Read a ROS 2 bag (directory, ``.db3`` or ``.mcap``) into recording columns (docs/formats.md)."""
     return _read_bag(Path(path))
 
 

@@ -81,7 +81,7 @@ def is_tum_bmw_i3(path: Path) -> bool:
 
 
 def read_tum_bmw_i3(path: str | Path) -> pd.DataFrame:
-    """Read one trip into SPEC §3 columns (see the module docstring for the mapping).
+    """Read one trip into recording columns (docs/formats.md) (see the module docstring for the mapping).
 
     Raises
     ------

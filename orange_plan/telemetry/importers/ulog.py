@@ -28,7 +28,7 @@ TOPICS = ("battery_status", "vehicle_local_position")
 
 
 def read_ulog(path: str | Path) -> pd.DataFrame:
-    """Read a PX4 ULog into SPEC §3 columns (see the module docstring for the mapping).
+    """Read a PX4 ULog into recording columns (docs/formats.md) (see the module docstring for the mapping).
 
     Raises
     ------

@@ -2,6 +2,10 @@
 ``orange-plan sweep`` count for every flight (coverage up to the battery's exhaustion,
 stranded or home, energy left), in one place below all three.
 
+``simulate_route`` flies one route; ``Flown`` collects the segments a mission flew (one per
+route it followed) and scores them with ``Flown.outcome``; ``fly_open_loop`` does both for a
+plan flown as planned.
+
 A flight may be flown as segments (a mission that changes route): the energy drawn is summed
 over them and a mission is **stranded** when that sum exceeds the truth's usable energy before
 the robot is home, or when it does not end within ``HOME_TOLERANCE_M`` of home.
@@ -9,10 +13,18 @@ the robot is home, or when it does not end within ``HOME_TOLERANCE_M`` of home.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+import shapely
+
+from orange_plan.planning.coverage import footprint
+from orange_plan.sim.route import Route
+from orange_plan.sim.simulator import SimResult, simulate
+
+if TYPE_CHECKING:
+    from orange_plan.context import Context
 
 HOME_TOLERANCE_M = 1.0
 """A flight whose last position is farther than this from home did not get home [m]."""
@@ -21,10 +33,6 @@ HOME_TOLERANCE_M = 1.0
 def flown_footprint(world, xy, radius_m: float):
     """``coverage.footprint`` of recorded positions, the polyline first simplified by 2 % of r
     (10 Hz samples are centimetres apart; the buffer's area changes by well under 1 %)."""
-    import shapely
-
-    from orange_plan.planning.coverage import footprint
-
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) > 2:
         xy = shapely.get_coordinates(shapely.LineString(xy).simplify(0.02 * radius_m))
@@ -32,8 +40,12 @@ def flown_footprint(world, xy, radius_m: float):
 
 
 @dataclass
-class _Flown:
-    """Segments flown so far: positions and power per sample, and what happened."""
+class Flown:
+    """Segments flown so far: positions and power per sample, and what happened.
+
+    ``dt`` is the sample interval [s] and ``e_avail`` the truth's usable energy [J]; ``add``
+    appends a simulated segment's frame (its first ``n`` samples), ``outcome`` scores them.
+    """
 
     dt: float
     xy: list
@@ -53,7 +65,11 @@ class _Flown:
         self.xy.append(frame[["x_m", "y_m"]].to_numpy(float)[:n])
         self.power.append(frame["power_W"].to_numpy(float)[:n])
 
-    def outcome(self, ctx) -> dict:
+    def outcome(self, ctx: Context) -> dict:
+        """The flight's score: ``coverage_m2`` sensed until the battery ran out (or the end),
+        ``energy_left_J``, ``stranded`` (out of energy, or ended farther than
+        ``HOME_TOLERANCE_M`` from home), ``duration_s``, ``replans``, ``returned_early``,
+        ``note``."""
         xy = np.vstack(self.xy)
         cum = np.cumsum(np.concatenate(self.power)) * self.dt
         empty = np.flatnonzero(cum > self.e_avail)
@@ -67,19 +83,19 @@ class _Flown:
                 "note": self.note}
 
 
-def _simulate(ctx, xy, speed, truth, seed, rate, energy_start_J: float = 0.0):
-    from orange_plan.sim.route import Route
-    from orange_plan.sim.simulator import simulate
-
+def simulate_route(ctx: Context, xy, speed, truth, seed, rate,
+                   energy_start_J: float = 0.0) -> SimResult:
+    """Fly the route ``xy`` [m] at per-vertex ``speed`` [m/s] under ``truth`` (None: the
+    scenario's own model), sampled at ``rate`` [Hz], from ``energy_start_J`` already drawn."""
     return simulate(ctx, Route(np.asarray(xy, float), np.asarray(speed, float), "bench mission"),
                     truth, seed=int(seed), sample_rate_Hz=rate,
                     energy_start_J=max(float(energy_start_J), 0.0))
 
 
-def fly_open_loop(ctx, plan, truth, seed: int, rate: float) -> dict:
+def fly_open_loop(ctx: Context, plan, truth, seed: int, rate: float) -> dict:
     """(b) and (d): the tour flown as planned."""
-    sim = _simulate(ctx, plan.xy_m, plan.speed_mps, truth, seed, rate)
-    flown = _Flown(1.0 / rate, [], [], sim.energy_available_J)
+    sim = simulate_route(ctx, plan.xy_m, plan.speed_mps, truth, seed, rate)
+    flown = Flown(1.0 / rate, [], [], sim.energy_available_J)
     flown.add(sim.frame)
     return flown.outcome(ctx)
 
@@ -91,9 +107,3 @@ def stranding_upper_bound(k: int, n: int, level: float = 0.95) -> float | None:
     if n <= 0:
         return None
     return 1.0 if k >= n else float(beta.ppf(level, k + 1, n - k))
-
-
-def _fmt(value, spec: str) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "-"
-    return format(value, spec)

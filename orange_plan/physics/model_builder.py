@@ -2,7 +2,7 @@
 values -> a prior covariance.
 
 Every EnergyModel made from a scenario goes through here: ``load_context`` and the service
-(``build_model``: the reference terms of SPEC §7 + ``[model]``), calibration and the online
+(``build_model``: the reference terms + ``[model]``), calibration and the online
 benchmarks (``model_with_terms``: another term list on top of a loaded model), and the
 calibrated-scenario writer (``physical_values``: the same table read backwards). So the
 ``calibrate -o`` round trip holds by construction: what is written is read by the same rows.
@@ -10,7 +10,8 @@ calibrated-scenario writer (``physical_values``: the same table read backwards).
 The table ``LUMPED`` holds, per lumped coefficient, the physical value it stands for and the
 factors between them: ``lumped = value * mul / div`` and ``physical = lumped * div / mul``
 (kept as a product and a quotient, not a folded factor, so the forward map gives the very
-floats ``(s0 + compute + comm) / (1 - eta_4)`` or ``m / Omega`` of SPEC §7).
+floats ``(s0 + compute + comm) / (1 - eta_4)`` or ``m / Omega`` of the term table in
+docs/guide/range.md).
 """
 
 from __future__ import annotations
@@ -168,11 +169,6 @@ def reference_value(name: str, scenario) -> float:
     return _row(name).lumped(scenario)
 
 
-def reference_coefficients(scenario) -> dict[str, float]:
-    """Every lumped coefficient's a priori value from a scenario's physical values."""
-    return {name: row.lumped(scenario) for name, row in LUMPED.items()}
-
-
 def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
     """Physical quantities implied by a model's lumped coefficients (the table read
     backwards), keyed by dotted scenario key or descriptive name, in table order."""
@@ -182,7 +178,7 @@ def physical_values(scenario, model: EnergyModel) -> dict[str, float]:
 
 
 def reference_terms_by_physics(scenario) -> dict[str, bool]:
-    """Which reference terms the scenario's physical keys switch on (SPEC §7), in model order."""
+    """Which reference terms the scenario's physical keys switch on, in model order."""
     robot, anc = scenario.robot, scenario.ancillary
     return {
         "ancillary": True,
@@ -209,7 +205,7 @@ def reference_term_ids(scenario) -> list[str]:
 
 
 def make_term(term_id: str, surface_names: Sequence[str]) -> Term:
-    """The term of vocabulary id ``term_id`` (SPEC §6); ``surface_rolling`` is built for the
+    """The term of vocabulary id ``term_id``; ``surface_rolling`` is built for the
     given surfaces.
 
     Raises
@@ -275,7 +271,7 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
 
 
 def model_with_terms(ctx, terms: Sequence[str] | None, surface_names=None) -> EnergyModel:
-    """The context's model, or one with exactly ``terms`` (vocabulary ids, SPEC §6) in order.
+    """The context's model, or one with exactly ``terms`` (vocabulary ids: docs/guide/range.md) in order.
 
     Coefficients keep the context model's values and (co)variances; new ones start at the
     scenario's reference values with ``prior_variance`` (zero value: no prior).
