@@ -69,7 +69,7 @@ def check_cmd(
     wind_xy = None if wind is None else wind_xy_mps(*parse_wind(wind))
     check_range(acceptance_radius_m, "--acceptance-radius-m", low_open=False)
     if png is not None:
-        from orange_plan.paths import check_output
+        from orange_plan.files import check_output
 
         check_output(png, "--png", [".png"], inputs=[mission, scenario])
     ctx = load_context(scenario)
@@ -99,7 +99,7 @@ def _is_plan(path: Path) -> bool:
     """A plan GeoJSON (map frame) rather than a longitude/latitude LineString."""
     if path.suffix.lower() not in (".geojson", ".json"):
         return False
-    from orange_plan.paths import read_json
+    from orange_plan.files import read_json
 
     data = read_json(path, "mission GeoJSON")
     return isinstance(data, dict) and any(

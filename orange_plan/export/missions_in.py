@@ -47,7 +47,7 @@ from orange_plan.export.autopilot import (
     latlon_to_xy,
 )
 from orange_plan.limits import MAX_MISSION_WAYPOINTS
-from orange_plan.paths import csv_delimiter_hint, read_json, require_file
+from orange_plan.files import csv_delimiter_hint, read_json, require_file
 
 NAV_LAND, NAV_LOITER_TIME = 21, 19
 PASSIVE_COMMANDS = {
