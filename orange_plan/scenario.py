@@ -64,6 +64,8 @@ NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
         "hover_W": (0.0, non_negative),
         "turn_coeff_W_s_per_rad": (0.0, non_negative),
         "radius_m": (0.0, non_negative),
+        "climb_mps": (ABSENT, positive),
+        "descent_mps": (ABSENT, positive),
     },
     "losses": {
         "battery": (REQUIRED, _fraction_open),
@@ -130,6 +132,11 @@ class Robot:
     radius_m: float = 0.0
     """Radius of the disc that holds the robot's footprint [m]: every path keeps this far
     from obstacles, no-go zones and the boundary (0: a point robot)."""
+    climb_mps: float | None = None
+    """Vertical climb speed of an aerial robot [m/s] (None: ``planning.mission_check``'s
+    default, capped at ``v_max_mps``)."""
+    descent_mps: float | None = None
+    """Vertical descent speed of an aerial robot [m/s] (None: the default, as ``climb_mps``)."""
 
 
 @dataclass(frozen=True)
