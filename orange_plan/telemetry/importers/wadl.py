@@ -23,6 +23,9 @@ The recording is put on a 1 s grid from take-off (0 s) to touch-down (``duration
   the first and after the last (the first airborne reading comes 5-20 s after take-off; the
   current is smoothed on board, transients under about 10 s are not visible anyway). A
   ``soc`` of a glitch reading is left out. ``power_W`` = voltage x current.
+* ``yaw_rate_radps``: rate of the heading of the horizontal track (held while the drone moves
+  less than ``STILL_MPS`` horizontally: on a vertical take-off or landing the heading of
+  centimetre jitter means nothing).
 * Extra columns: ``mode`` (DJI flight mode of the nearest earlier reading).
 """
 
@@ -42,6 +45,8 @@ BATTERY_COLUMNS = ("t_s", "voltage_V", "current_A", "power_W", "soc", "battery_C
                    "y_m", "z_m", "s_m", "mode")
 ROUTE_COLUMNS = ("wp", "x_m", "y_m", "z_m", "speed_to_next_mps", "stay_s", "corner_radius_m")
 SUFFIX = ".csv"
+STILL_MPS = 0.5
+"""Horizontal speed below which the track's heading is held [m/s]."""
 
 
 def flight_files(path: str | Path) -> dict[str, Path]:
@@ -125,6 +130,18 @@ def _path_speed(t: np.ndarray, knots: pd.DataFrame) -> np.ndarray:
     return speed[index] if speed.size else np.zeros_like(t)
 
 
+def _track_yaw_rate(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Heading rate of the horizontal track, the heading held while nearly still [rad/s]."""
+    dx, dy = np.gradient(x, t), np.gradient(y, t)
+    heading = np.arctan2(dy, dx)
+    moving = np.hypot(dx, dy) >= STILL_MPS
+    if not moving.any():
+        return np.zeros_like(t)
+    index = np.maximum.accumulate(np.where(moving, np.arange(t.size), 0))
+    held = np.where(moving[index], heading[index], heading[np.argmax(moving)])
+    return np.gradient(np.unwrap(held), t)
+
+
 def read_wadl(path: str | Path) -> pd.DataFrame:
     """Read one flight (its ``<id>.csv``; the sibling files are found by name) into SPEC §3
     columns on a 1 s grid (see the module docstring).
@@ -149,6 +166,7 @@ def read_wadl(path: str | Path) -> pd.DataFrame:
     for column in ("x_m", "y_m", "z_m"):
         frame[column] = np.interp(t, knots["t_s"], knots[column])
     frame["v_mps"] = _path_speed(t, knots)
+    frame["yaw_rate_radps"] = _track_yaw_rate(t, frame["x_m"].to_numpy(), frame["y_m"].to_numpy())
     rt = readings["t_s"].to_numpy(float)
     for column in ("voltage_V", "current_A", "battery_C"):
         frame[column] = np.interp(t, rt, readings[column].to_numpy(float))
