@@ -64,3 +64,16 @@ def smallest_radius_m(area_m2: float, points_per_r2_m2: float, limit: int) -> fl
     [m] (what a refusal tells the user to ask for instead)."""
     return math.sqrt(area_m2 / (points_per_r2_m2 * limit))
 
+
+
+MAX_MISSION_WAYPOINTS = 10_000
+"""Most waypoints of a mission ``check`` reads (a survey of a few square kilometres has a
+few thousand)."""
+
+MAX_MISSION_SAMPLES = 3_000_000
+"""Most motion samples (0.1 s each, or sub-steps) of the mission a check drives at once: at
+about 300 bytes a sample, under 1 GB (83 hours of flight)."""
+
+MAX_MISSION_HOME_SAMPLES = 30_000_000
+"""Most samples of the ways home from every leg end a check drives (in batches, so memory
+stays that of one batch; time grows with them: about 10 s of CPU per 10 million)."""

@@ -56,6 +56,11 @@ import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.export.missions_in import Mission, MissionWaypoint
+from orange_plan.limits import (
+    MAX_MISSION_HOME_SAMPLES,
+    MAX_MISSION_SAMPLES,
+    MAX_MISSION_WAYPOINTS,
+)
 from orange_plan.physics.pathcost import Steps, max_step_m, subdivide
 from orange_plan.physics.profile import (
     SAMPLE_DT_S,
@@ -80,6 +85,8 @@ DEFAULT_DESCENT_MPS = 1.5
 VERTICAL_EPS_M = 1e-6
 """A stage whose horizontal length is below this is vertical [m]."""
 VERDICTS = ("fits", "fits_without_reserve", "does_not_fit")
+HOME_BATCH_SAMPLES = 500_000
+"""Samples of ways home driven at once (bounds the memory of a long mission's check)."""
 WIND_SWEEP_DEG = 10.0
 """Step of the worst-wind-direction sweep [deg]."""
 
@@ -99,6 +106,7 @@ class LegCheck:
     length_m : 3-D length; climb_m : rise (negative: descent); speed_mps : commanded speed
     energy_J, energy_sd_J : energy of the stage (hold at its end included) and its predictive sd
     duration_s : its time; distance_m : distance along the route at its end
+    from_xyz_m, to_xyz_m : where it starts and ends (map frame, z above home) [m]
     energy_used_J : energy used at its end; energy_to_home_J : energy of the way home from
         there; reserve_J : the reserve for both; margin_J : the homing margin there
     """
@@ -117,13 +125,16 @@ class LegCheck:
     energy_to_home_J: float
     reserve_J: float
     margin_J: float
+    from_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    to_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def as_dict(self) -> dict:
         return {"kind": self.kind, "from": self.from_waypoint, "to": self.to_waypoint,
                 **{k: getattr(self, k) for k in (
                     "length_m", "climb_m", "speed_mps", "energy_J", "energy_sd_J",
                     "duration_s", "distance_m", "energy_used_J", "energy_to_home_J",
-                    "reserve_J", "margin_J")}}
+                    "reserve_J", "margin_J")},
+                "from_xyz_m": list(self.from_xyz_m), "to_xyz_m": list(self.to_xyz_m)}
 
 
 @dataclass(frozen=True)
@@ -160,6 +171,8 @@ class MissionCheck:
     wind_xy_mps: tuple[float, float]
     worst_wind: tuple[float, float] | None
     reserve_rule: str
+    start_margin_J: float = 0.0
+    """Margin at home before the take-off (nothing used, nothing to fly home) [J]."""
 
     @property
     def margin_J(self) -> np.ndarray:
@@ -348,32 +361,48 @@ class _FlatWorld:
         return np.full(np.broadcast(np.asarray(x), np.asarray(y)).shape, -1)
 
 
-def _stage_steps(world, st: _Stage, aerial: bool, step_m: float) -> Steps:
-    """Sub-steps of one stage (``pathcost.Steps``): the terrain's for ground robots, the
-    stage's own climb spread evenly for aerial ones, one sub-step for a vertical stage."""
-    (x0, y0, z0), (x1, y1, z1) = st.start, st.end
-    if st.vertical:
-        return Steps(segment=np.zeros(1, int), length_m=np.array([abs(z1 - z0)]),
-                     horiz_m=np.zeros(1), dz_m=np.array([z1 - z0]), dir_x=np.zeros(1),
-                     dir_y=np.zeros(1), crr=np.asarray(world.crr_at([x0], [y0]), float),
-                     surface_code=np.asarray(world.surface_code_at([x0], [y0])), n_segments=1)
-    steps = subdivide(world, [(x0, y0)], [(x1, y1)], step_m)
-    if not aerial:
-        return steps
-    dz = (z1 - z0) * steps.horiz_m / st.horiz_m
-    return replace(steps, dz_m=dz, length_m=np.hypot(steps.horiz_m, dz))
+def _stages_steps(world, stages: list[_Stage], aerial: bool, step_m: float) -> Steps:
+    """Sub-steps of the stages in order, ``segment`` = stage index (``pathcost.Steps``): the
+    terrain's (``subdivide``) for ground robots, the stage's own climb spread evenly for
+    aerial ones, one sub-step for a vertical stage."""
+    start = np.array([st.start for st in stages], float)
+    end = np.array([st.end for st in stages], float)
+    vertical = np.array([st.vertical for st in stages])
+    flat = np.flatnonzero(~vertical)
+    parts = []
+    if flat.size:
+        steps = subdivide(world, start[flat, :2], end[flat, :2], step_m)
+        seg = flat[steps.segment]
+        if aerial:
+            horiz = np.hypot(*(end[flat, :2] - start[flat, :2]).T)[steps.segment]
+            dz = (end[seg, 2] - start[seg, 2]) * steps.horiz_m / horiz
+            steps = replace(steps, dz_m=dz, length_m=np.hypot(steps.horiz_m, dz))
+        parts.append(replace(steps, segment=seg))
+    up = np.flatnonzero(vertical)
+    if up.size:
+        x, y, rise = start[up, 0], start[up, 1], end[up, 2] - start[up, 2]
+        zero = np.zeros(up.size)
+        parts.append(Steps(segment=up, length_m=np.abs(rise), horiz_m=zero, dz_m=rise,
+                           dir_x=zero, dir_y=zero, crr=np.asarray(world.crr_at(x, y), float),
+                           surface_code=np.asarray(world.surface_code_at(x, y)),
+                           n_segments=up.size))
+    merged = Steps.concat(parts)
+    order = np.argsort(np.concatenate([p.segment for p in parts]), kind="stable")
+    fields = ("length_m", "horiz_m", "dz_m", "dir_x", "dir_y", "crr", "surface_code")
+    return Steps(segment=np.concatenate([p.segment for p in parts])[order],
+                 n_segments=len(stages), **{f: getattr(merged, f)[order] for f in fields})
 
 
 def _step_speeds(stages: list[_Stage], steps: Steps, robot: _Robot, dt: float) -> np.ndarray:
     """Cruise speed per sub-step, capped around each corner (braking at ``accel_max`` to the
     corner speed by the start of its arc, one sample of anticipation, held through the arc)."""
-    speed = np.array([stages[s].speed for s in steps.segment], float)
+    speed = np.array([st.speed for st in stages], float)[steps.segment]
     edges = np.r_[0.0, np.cumsum(steps.length_m)]
-    stage_end = edges[np.r_[np.flatnonzero(np.diff(steps.segment)) + 1, steps.segment.size]]
+    stage_end = edges[np.searchsorted(steps.segment, np.arange(len(stages)), side="right")]
     a = robot.accel_mps2
     for k, st in enumerate(stages[:-1]):
         v_c = st.corner_mps
-        if not v_c < max(st.speed, stages[k + 1].speed):
+        if not (0 < v_c < max(st.speed, stages[k + 1].speed)):
             continue
         s_c, r = stage_end[k], st.corner_r_m
         reach = r + (st.speed**2 - v_c**2) / (2 * a) + a * dt * dt
@@ -399,55 +428,70 @@ class _Samples:
 
 def _drive(groups, world, robot: _Robot, conditions, step_m: float,
            dt: float = SAMPLE_DT_S) -> _Samples:
-    """Samples of ``groups``: (label, stages) with each stage's hold at rest. Each group's
-    stages are flown in order; labels name what the samples are charged to (per-sample labels
-    are the stage's own index when ``label`` is None)."""
-    states, sizes, weights, labels = [], [], [], []
+    """Samples of ``groups``, pairs (label, stages): each group's stages flown in order, one
+    ``Driver`` run between stops, a hold as one sample at rest. A group's samples are charged
+    to its label, or (label None) each to its own stage's index."""
+    stages = [st for _, group in groups for st in group]
+    labels = np.concatenate([np.arange(len(group)) if label is None
+                             else np.full(len(group), label) for label, group in groups])
+    first = np.cumsum([0] + [len(group) for _, group in groups])
+    runs = [[int(first[g] + k) for k in run]
+            for g, (_, group) in enumerate(groups) for run in _runs(list(group))]
+    steps = _stages_steps(world, stages, robot.aerial, step_m)
+    speeds = _step_speeds(stages, steps, robot, dt)
+    bounds = np.searchsorted(steps.segment, np.arange(len(stages) + 1), side="left")
     k_spread = max(1, round(TURN_SPREAD_S / dt))
-    for label, stages in groups:
-        stages = list(stages)
-        for run in _runs(stages):
-            run_stages = [stages[k] for k in run]
-            for k, st in zip(run, run_stages):
-                if st.hold_start_s > 0:
-                    _add_hold(world, st.start, st.hold_start_s, conditions, k if label is None
-                              else label, states, sizes, weights, labels)
-            parts = [_stage_steps(world, st, robot.aerial, step_m) for st in run_stages]
-            steps = Steps.concat(parts)
-            step_stage = np.asarray(run)[steps.segment]
-            speeds = _step_speeds(run_stages, steps, robot, dt)
-            edges = np.r_[0.0, np.cumsum(steps.length_m)]
-            kin = Driver(edges, speeds, np.ones(speeds.size), robot.accel_mps2, dt,
-                         conditions.duty_cycle, STOP_EVERY_S).run(np.iinfo(np.int64).max)
-            heading = np.arctan2(steps.dir_y, steps.dir_x)[kin["step"]]
-            yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0), k_spread, dt)
-            states.append(drive_state(steps, kin, yaw, conditions.wind_xy_mps,
-                                      steps.crr[kin["step"]], conditions))
-            n = kin["step"].size
-            sizes.append(n)
-            weights.append(np.full(n, dt))
-            labels.append(step_stage[kin["step"]] if label is None else np.full(n, label))
-            for k, st in zip(run, run_stages):
-                if st.hold_s > 0:
-                    _add_hold(world, st.end, st.hold_s, conditions, k if label is None
-                              else label, states, sizes, weights, labels)
-    return _Samples(MotionState.concat(states, sizes), np.concatenate(weights),
-                    np.concatenate(labels).astype(int))
+    heading_all = np.arctan2(steps.dir_y, steps.dir_x)
+    kins = []
+    for run in runs:
+        lo, hi = bounds[run[0]], bounds[run[-1] + 1]
+        edges = np.r_[0.0, np.cumsum(steps.length_m[lo:hi])]
+        kin = _drive_run(edges, speeds[lo:hi], robot.accel_mps2, dt, conditions.duty_cycle)
+        j = kin["step"] + lo
+        heading = heading_all[j]
+        yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0), k_spread, dt)
+        kins.append({"step": j, "v": kin["v"], "accel": kin["accel"], "yaw": yaw})
+    kin = {key: np.concatenate([k[key] for k in kins]) for key in ("step", "v", "accel", "yaw")}
+    moving = drive_state(steps, kin, kin["yaw"], conditions.wind_xy_mps, steps.crr[kin["step"]],
+                         conditions)
+    n_moving = kin["step"].size
+    weight = np.full(n_moving, dt)
+    label = labels[steps.segment[kin["step"]]]
+    holds = [(st.start, st.hold_start_s, labels[k]) for k, st in enumerate(stages)
+             if st.hold_start_s > 0] + [(st.end, st.hold_s, labels[k])
+                                        for k, st in enumerate(stages) if st.hold_s > 0]
+    if not holds:
+        return _Samples(moving, weight, label)
+    rest = _at_rest(world, np.array([h[0] for h in holds], float), conditions)
+    return _Samples(MotionState.concat([moving, rest], [n_moving, len(holds)]),
+                    np.r_[weight, [h[1] for h in holds]], np.r_[label, [h[2] for h in holds]])
 
 
-def _add_hold(world, xyz, hold_s, conditions, label, states, sizes, weights, labels):
-    """One sample at rest standing for a hold of ``hold_s`` [s] at ``xyz``."""
-    x, y = [xyz[0]], [xyz[1]]
-    states.append(MotionState(
-        speed_mps=np.zeros(1), dir_x=np.zeros(1), dir_y=np.zeros(1),
-        wind_x_mps=np.full(1, conditions.wind_xy_mps[0]),
-        wind_y_mps=np.full(1, conditions.wind_xy_mps[1]),
-        crr=np.asarray(world.crr_at(x, y), float), sensor_rate_Hz=np.full(1,
-                                                                          conditions.sensor_rate_Hz),
-        surface_code=np.asarray(world.surface_code_at(x, y)), channels=conditions.channels))
-    sizes.append(1)
-    weights.append(np.array([float(hold_s)]))
-    labels.append(np.array([label]))
+def _drive_run(edges, speeds, accel: float, dt: float, duty: float) -> dict:
+    """``Driver.run`` of one run to its end, asked for about the samples it needs (twice the
+    time at the slowest speed plus the ramps, over the duty cycle) so that a short run does not
+    allocate the Driver's full chunk, and again until it ends."""
+    driver = Driver(edges, speeds, np.ones(speeds.size), accel, dt, duty, STOP_EVERY_S)
+    slow = max(float(np.min(speeds)), 1e-3)
+    guess = int(2 * (edges[-1] / slow + 2 * float(np.max(speeds)) / accel) / (dt * duty)) + 16
+    parts = [driver.run(guess)]
+    while not driver.finished:
+        parts.append(driver.run(guess))
+    if len(parts) == 1:
+        return parts[0]
+    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+
+def _at_rest(world, xyz: np.ndarray, conditions) -> MotionState:
+    """Samples at rest at ``xyz`` (n, 3): a hold (hover for an aerial robot) [m]."""
+    x, y, n = xyz[:, 0], xyz[:, 1], len(xyz)
+    return MotionState(
+        speed_mps=np.zeros(n), dir_x=np.zeros(n), dir_y=np.zeros(n),
+        wind_x_mps=np.full(n, conditions.wind_xy_mps[0]),
+        wind_y_mps=np.full(n, conditions.wind_xy_mps[1]),
+        crr=np.asarray(world.crr_at(x, y), float),
+        sensor_rate_Hz=np.full(n, conditions.sensor_rate_Hz),
+        surface_code=np.asarray(world.surface_code_at(x, y)), channels=conditions.channels)
 
 
 def _totals(model, samples: _Samples, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -489,6 +533,31 @@ def _check_placement(mission: Mission, world, aerial: bool) -> None:
                              f"below the ground there ({ground[i]:g} m above home)")
 
 
+def _samples_per_m(stages: list[_Stage], duty: float, step_m: float) -> float:
+    """Upper bound of samples (or sub-steps) per metre of the stages' flight."""
+    slowest = max(min(st.speed for st in stages), 1e-3)
+    return max(1.0 / (slowest * SAMPLE_DT_S * duty), 1.0 / step_m)
+
+
+def _check_size(mission: Mission, stages: list[_Stage], duty: float, step_m: float) -> None:
+    """Refuse a mission whose own samples would exceed ``MAX_MISSION_SAMPLES``, or whose
+    ways home from every leg end would exceed ``MAX_MISSION_HOME_SAMPLES`` (driven in
+    batches of ``HOME_BATCH_SAMPLES``)."""
+    if len(mission.waypoints) > MAX_MISSION_WAYPOINTS:
+        raise InputError(f"{mission.source}: {len(mission.waypoints):,} waypoints, more than "
+                         f"the {MAX_MISSION_WAYPOINTS:,} a check takes")
+    per_m = _samples_per_m(stages, duty, step_m)
+    own = per_m * sum(st.length_m for st in stages)
+    home = np.array([mission.waypoints[0].x_m, mission.waypoints[0].y_m, 0.0])
+    back = per_m * sum(float(np.abs(np.subtract(st.end, home)).sum()) for st in stages)
+    for count, limit, what in ((own, MAX_MISSION_SAMPLES, "flying the mission"),
+                               (back, MAX_MISSION_HOME_SAMPLES, "the ways home")):
+        if count > limit:
+            raise InputError(f"{mission.source}: {what} takes about {count:,.0f} samples of "
+                             f"{SAMPLE_DT_S:g} s, more than the {limit:,} a check takes "
+                             "(fewer or shorter legs, or a faster speed)")
+
+
 def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = False,
                   in_map_frame: bool = True) -> MissionCheck:
     """Check a mission against the scenario's battery (module docstring).
@@ -517,6 +586,7 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
         world = _FlatWorld(ctx.world)
     step_m = max_step_m(world)
     stages = _with_corners(_stages(mission, robot), mission, robot)
+    _check_size(mission, stages, conditions.duty_cycle, step_m)
     n = len(stages)
     samples = _drive([(None, stages)], world, robot, conditions, step_m)
     energy, grad, duration = _totals(ctx.model, samples, n)
@@ -527,12 +597,13 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
     worst = _worst_wind(ctx.model, samples, conditions, n) if worst_wind else None
     total_g = grad.sum(axis=0)
     total = float(energy.sum())
+    rule = reserve_from(ctx.scenario)
+    start_margin = float(avail - rule.size_J(0.0, 0.0, avail))
     return MissionCheck(
         tuple(legs), total, float(np.sqrt(ctx.model.predictive_variance_J2(total_g, total))),
         float(duration.sum()), float(avail), total_reserve, verdict, failing,
-        _point_of_no_return(legs, float(avail - reserve_from(ctx.scenario).size_J(
-            0.0, 0.0, avail))), conditions.wind_xy_mps, worst,
-        reserve_from(ctx.scenario).describe())
+        _point_of_no_return(legs, start_margin), conditions.wind_xy_mps, worst,
+        rule.describe(), start_margin)
 
 
 def _ways_home(stages, mission, world, robot, conditions, step_m, model):
@@ -558,12 +629,25 @@ def _ways_home(stages, mission, world, robot, conditions, step_m, model):
             way.append(_Stage("landing", 0, 0, here, end, _leg_speed(robot, None, here, end)))
         if way:
             groups.append((k, way))
-    k = len(model.theta)
-    if not groups:
-        return np.zeros(len(stages)), np.zeros((len(stages), k))
-    samples = _drive(groups, world, robot, conditions, step_m)
-    energy, grad, _ = _totals(model, samples, len(stages))
+    energy, grad = np.zeros(len(stages)), np.zeros((len(stages), len(model.theta)))
+    for batch in _batches(groups, _samples_per_m(stages, conditions.duty_cycle, step_m)):
+        samples = _drive(batch, world, robot, conditions, step_m)
+        e, g, _ = _totals(model, samples, len(stages))
+        energy, grad = energy + e, grad + g
     return energy, grad
+
+
+def _batches(groups, per_m: float):
+    """``groups`` cut into batches of about ``HOME_BATCH_SAMPLES`` samples (memory bound)."""
+    batch, count = [], 0.0
+    for group in groups:
+        batch.append(group)
+        count += per_m * sum(st.length_m for st in group[1])
+        if count >= HOME_BATCH_SAMPLES:
+            yield batch
+            batch, count = [], 0.0
+    if batch:
+        yield batch
 
 
 def _legs(stages, energy, grad, duration, home_e, home_g, ctx):
@@ -581,7 +665,8 @@ def _legs(stages, energy, grad, duration, home_e, home_g, ctx):
     legs = [LegCheck(st.kind, st.from_wp, st.to_wp, st.length_m,
                      float(st.end[2] - st.start[2]), st.speed, float(energy[k]), float(sd[k]),
                      float(duration[k]), float(distance[k]), float(used[k]), float(home_e[k]),
-                     float(reserve[k]), float(margin[k]))
+                     float(reserve[k]), float(margin[k]),
+                     tuple(float(v) for v in st.start), tuple(float(v) for v in st.end))
             for k, st in enumerate(stages)]
     total_var = model.predictive_variance_J2(used_g[-1], used[-1])
     return legs, float(rule.size_J(used[-1], total_var, avail))
