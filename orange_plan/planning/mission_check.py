@@ -95,8 +95,8 @@ WIND_SWEEP_DEG = 10.0
 """Step of the worst-wind-direction sweep [deg]."""
 STOP_BELOW_MPS = 0.5
 """A corner whose allowed speed is below this is a stop [m/s]: on a hairpin (a turn of nearly
-180 degrees) the arc's radius and speed tend to zero and the corner would be crept round for
-hours (a survey's reversal at 179.9 degrees read 10 h)."""
+180 degrees) the arc's radius and speed tend to zero; reversing takes the velocity through
+zero, so the robot brakes to a stop and accelerates again whatever the corner radius."""
 
 
 # --- the answer -------------------------------------------------------------------------------
