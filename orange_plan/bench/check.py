@@ -238,8 +238,22 @@ def run_fold(prep: _Prepared, ctx, test: np.ndarray, terms=TERMS) -> list[dict]:
     return rows
 
 
+def a_priori(ctx):
+    """The scenario without its calibrated coefficients (its [model] table keeps only the
+    term list): what the folds start from, so no fold sees a value fitted on its flights."""
+    from dataclasses import replace
+
+    from orange_plan.context import context_of
+    from orange_plan.scenario import ModelSpec
+
+    spec = ModelSpec(terms=ctx.scenario.model.terms)
+    return context_of(replace(ctx.scenario, model=spec))
+
+
 def check_benchmark(flights: list[Flight], ctx, terms=TERMS, progress=None) -> list[dict]:
-    """Leave-one-route-out over the flights: one row per flight (``run_fold``)."""
+    """Leave-one-route-out over the flights: one row per flight (``run_fold``), every fold
+    fitted from the scenario's a priori values (``a_priori``)."""
+    ctx = a_priori(ctx)
     prep = prepare(flights, ctx)
     routes = np.array([f.route for f in flights])
     rows = []
@@ -288,13 +302,14 @@ def write_json(path: Path, payload: dict) -> None:
 
 
 def diagnose_flights(flights: list[Flight], ctx, n: int) -> dict:
-    """``identify.diagnose`` with the a-priori scenario on the first ``n`` nominal flights:
+    """``identify.diagnose`` with the a priori scenario on the first ``n`` nominal flights:
     how often each missing term was found, and each flight's verdict and evidence (with the
     detection limits it states when nothing is found)."""
     from collections import Counter
 
     from orange_plan.identify.diagnose import diagnose
 
+    ctx = a_priori(ctx)
     found, per_flight = Counter(), []
     for f in [f for f in flights if not f.speed_anomaly][:n]:
         result = diagnose(f.recording, ctx)

@@ -18,6 +18,7 @@ DataOpt = Annotated[Path | None, typer.Option(
                    "<prefix>/share/orange-plan/data that exists).")]
 ScenarioOpt = Annotated[Path | None, typer.Option(
     "--scenario", help="Scenario TOML (default: the shipped scenarios/dji_m100.toml).")]
+SCENARIO = "dji_m100.toml"
 LimitOpt = Annotated[int | None, typer.Option(
     "--limit", min=2, help="Use only the first N flights (sorted by name).")]
 PngOpt = Annotated[Path | None, typer.Option(
@@ -50,13 +51,14 @@ def bench_check_cmd(data: DataOpt = None, scenario: ScenarioOpt = None, limit: L
         check_output(png, "--png", [".png"])
     folder = (data if data is not None else examples_dir("data", "--data")) / DATASET
     require_folder(folder, "--data")
-    ctx = load_context(scenario or examples_dir("scenarios", "--scenario") / "dji_m100.toml")
+    ctx = load_context(scenario or _shipped_scenario())
     paths = flight_paths(folder, limit)
     with bar(len(paths), "flights", wanted(as_json)) as tick:
         flights = []
         for p in paths:
             flights.append(load_flight(p))
-            tick()
+            if tick:
+                tick()
     routes = len({f.route for f in flights})
     with bar(routes, "folds", wanted(as_json)) as tick:
         rows = check_benchmark(flights, ctx, progress=tick)
@@ -72,6 +74,18 @@ def bench_check_cmd(data: DataOpt = None, scenario: ScenarioOpt = None, limit: L
         print_json({"summary": summary, "flights": rows})
         return
     _print(summary)
+
+
+def _shipped_scenario() -> Path:
+    """The first ``dji_m100.toml`` of the example folders (examples' look-up order)."""
+    from orange_plan.errors import InputError
+    from orange_plan.examples import candidate_dirs, looked_in
+
+    for folder in candidate_dirs("scenarios"):
+        if (folder / SCENARIO).is_file():
+            return folder / SCENARIO
+    raise InputError(f"{SCENARIO} not found (looked in {looked_in('scenarios')}); give "
+                     "--scenario")
 
 
 def _print(summary: dict) -> None:
