@@ -315,9 +315,27 @@ def diagnose_flights(flights: list[Flight], ctx, n: int) -> dict:
         result = diagnose(f.recording, ctx)
         terms = [x.term for x in result.findings]
         found.update(terms)
+        limits = {}
+        for trial in result.trials:  # single candidates, first round: the limit they state
+            if "+" not in trial.id and np.isfinite(trial.detectable_W):
+                limits.setdefault(trial.id, float(trial.detectable_W))
+        mean_W = f.energy_J / f.duration_s
         per_flight.append({"flight": f.id, "found": terms, "verdict": result.verdict,
-                           "evidence": result.evidence,
+                           "evidence": result.evidence, "mean_power_W": mean_W,
+                           "detection_limit_W": limits,
                            "energy_error_pct_before": result.energy_error_pct(result.baseline),
                            "energy_error_pct_after": result.energy_error_pct(result.improved)})
     return {"flights": len(per_flight), "found": dict(found.most_common()),
+            "detection_limit_pct_median": _median_limits(per_flight),
             "per_flight": per_flight}
+
+
+def _median_limits(per_flight: list[dict]) -> dict:
+    """Per candidate: the median over flights of its detection limit, % of the mean power,
+    and on how many flights it was tried."""
+    pct: dict[str, list] = {}
+    for row in per_flight:
+        for cand, watts in row["detection_limit_W"].items():
+            pct.setdefault(cand, []).append(100.0 * watts / row["mean_power_W"])
+    return {cand: {"median_pct": float(np.median(v)), "flights": len(v)}
+            for cand, v in sorted(pct.items())}
