@@ -112,7 +112,7 @@ def test_real_flights_import_with_their_recorded_energy(flight):
 
 
 def test_the_transit_speed_flights_are_marked():
-    from orange_plan.bench.check import load_flight
+    from orange_plan.bench.flights import load_flight
 
     flight = load_flight(needs_flight(FLIGHTS[2]))
     assert flight.speed_anomaly and flight.route == "w1-r3-HKT"
@@ -146,11 +146,11 @@ def test_check_predicts_route_r1_bn_from_its_plan_alone():
     """The five flights of route r1-BN, from the uploaded mission alone (take-off, legs at the
     planned speeds, CURVED corners or NORMAL stops, landing), against their recorded energy.
 
-    Tolerance: ``bench check`` measures the route prediction within 10.1 % on 90 % of the 66
+    Tolerance: ``bench flights`` measures the route prediction within 10.1 % on 90 % of the 66
     nominal flights, held out by route (3.4 % median); the shipped scenario is fitted on all
     flights (these included), so 10 % per flight and 5 % on the route's mean are not lenient.
     """
-    from orange_plan.bench.check import wadl_mission
+    from orange_plan.bench.flights import wadl_mission
     from orange_plan.context import load_context
     from orange_plan.planning.mission_check import check_mission
 
@@ -170,7 +170,7 @@ def test_check_predicts_route_r1_bn_from_its_plan_alone():
 
 
 def test_the_route_discrepancy_splits_relative_and_fixed_parts():
-    from orange_plan.bench.check import route_discrepancy
+    from orange_plan.bench.flights import route_discrepancy
 
     predicted = np.array([1e5, 2e5, 4e5, 1e5, 2e5, 4e5])
     # errors +-(5 % of E and 3 kJ combined): half the flights above, half below
@@ -182,9 +182,9 @@ def test_the_route_discrepancy_splits_relative_and_fixed_parts():
     assert fixed == pytest.approx(3e3, rel=1e-6)
 
 
-def test_bench_check_runs_on_three_flights():
+def test_bench_flights_runs_on_three_flights():
     needs_flight(FLIGHTS[0])
-    code, stdout, stderr = run_cli("bench", "check", "--data", str(DATA.parent), "--limit", "3",
+    code, stdout, stderr = run_cli("bench", "flights", "--data", str(DATA.parent), "--limit", "3",
                                    "--json")
     assert code == 0, stderr
     out = json.loads(stdout)

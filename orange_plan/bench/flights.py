@@ -1,4 +1,4 @@
-"""``orange-plan bench check``: the aerial model against real DJI Matrice 100 survey flights.
+"""``orange-plan bench flights``: the aerial model against real DJI Matrice 100 survey flights.
 
 Data: the WADL flights (``wadl_m100``: 68 autonomous penguin-colony surveys, battery voltage
 and current, the uploaded waypoint mission and the waypoint-reached times; GPL-3.0, read where

@@ -1,4 +1,4 @@
-"""``orange-plan bench check``: predicted against recorded energy of real DJI Matrice 100
+"""``orange-plan bench flights``: predicted against recorded energy of real DJI Matrice 100
 survey flights, from the recording and from the planned route alone (docs/m100.md)."""
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ DiagnoseOpt = Annotated[int, typer.Option(
                               "nominal flights and count what it finds.")]
 
 
-@bench_app.command("check")
+@bench_app.command("flights")
 @handles_errors
-def bench_check_cmd(data: DataOpt = None, scenario: ScenarioOpt = None, limit: LimitOpt = None,
+def bench_flights_cmd(data: DataOpt = None, scenario: ScenarioOpt = None, limit: LimitOpt = None,
                     png: PngOpt = None, diagnose: DiagnoseOpt = 0,
                     as_json: JsonOpt = False) -> None:
     """Leave-one-route-out: each flight's energy from its recording, from its planned route,
     by energy per metre x planned length and by mean power x planned time."""
-    from orange_plan.bench.check import (
+    from orange_plan.bench.flights import (
         DATASET,
         check_benchmark,
         diagnose_flights,
