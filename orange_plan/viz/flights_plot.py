@@ -1,4 +1,4 @@
-"""Figure of ``orange-plan bench check``: each method's energy error per flight."""
+"""Figure of ``orange-plan bench flights``: each method's energy error per flight."""
 
 from __future__ import annotations
 
