@@ -367,7 +367,7 @@ def _register_commands() -> None:
 COMMAND_MODULES = [
     "range_", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose", "bench",
     "bench_identify", "bench_replan", "bench_sweep", "bench_concealed", "bench_diagnose", "export",
-    "check", "serve", "report", "sweep", "bench_flights",
+    "check", "bench_check", "serve", "report", "sweep", "bench_flights",
 ]
 """One module per command in orange_plan/commands/, registered in this order."""
 

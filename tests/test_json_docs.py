@@ -114,11 +114,13 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
     out["sweep"] = _json("sweep", sweep, "-o", d / "sweep.parquet", "--workers", "1")
     out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
                           d / "plan.plan")
+    out["check"] = _json("check", d / "plan.plan", "--scenario", world, "--wind", "2@90")
+    out["bench check"] = _json("bench", "check", world, "--waypoints", "6", "--repeats", "1")
     return out
 
 
 COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
-            "export", "bench reach", "bench replan", "bench online", "bench diagnose",
+            "export", "check", "bench check", "bench reach", "bench replan", "bench online", "bench diagnose",
             "bench concealed", "bench service", "sweep"]
 
 

@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from orange_plan.cli import JsonOpt, app, check_range, handles_errors, out, print_json
+from orange_plan.cli import JsonOpt, app, check_range, handles_errors, out, print_json, warn
 from orange_plan.errors import InputError
 
 MAX_WIND_MPS = 100.0
@@ -47,7 +47,12 @@ def check_cmd(
                        "scenario's; also reports the costliest direction.")] = None,
     acceptance_radius_m: Annotated[float, typer.Option(
         "--acceptance-radius-m", help="Autopilot acceptance radius for MAVLink waypoints that "
-                                      "give none [m]; 'inf' turns without slowing.")] = 2.0,
+                                      "give none [m]: the turn starts this far before the "
+                                      "waypoint.")] = 2.0,
+    corners_as_planned: Annotated[bool, typer.Option(
+        "--corners-as-planned", help="Pass every waypoint without slowing or stopping (holds "
+                                     "still stop), as 'orange-plan plan' models a tour.")]
+    = False,
     png: Annotated[Path | None, typer.Option(
         "--png", help="Write a PNG: the route coloured by homing margin, the point of no "
                       "return, margin against distance.")] = None,
@@ -62,8 +67,7 @@ def check_cmd(
     from orange_plan.planning.mission_check import check_mission
 
     wind_xy = None if wind is None else wind_xy_mps(*parse_wind(wind))
-    if not acceptance_radius_m >= 0:
-        raise InputError(f"--acceptance-radius-m = {acceptance_radius_m!r} must be >= 0")
+    check_range(acceptance_radius_m, "--acceptance-radius-m", low_open=False)
     if png is not None:
         from orange_plan.paths import check_output
 
@@ -71,6 +75,8 @@ def check_cmd(
     ctx = load_context(scenario)
     origin = getattr(ctx.world.map, "origin", None)
     read = read_mission(mission, origin, acceptance_radius_m)
+    if corners_as_planned:
+        read = read.turning_without_slowing()
     in_map = origin is not None or mission.suffix.lower() == ".csv" or _is_plan(mission)
     result = check_mission(read, ctx, wind=wind_xy, worst_wind=wind is not None,
                            in_map_frame=in_map)
@@ -81,6 +87,8 @@ def check_cmd(
                    f"{ctx.scenario.name}: {mission.name}, {result.verdict.replace('_', ' ')}")
     report = {"mission": str(mission), "scenario": ctx.scenario.name,
               "in_map_frame": in_map, **result.as_dict()}
+    for line in result.warnings:
+        warn(line)
     if as_json:
         print_json(report)
         return

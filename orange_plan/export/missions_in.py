@@ -46,11 +46,12 @@ from orange_plan.export.autopilot import (
     MissionItem,
     latlon_to_xy,
 )
+from orange_plan.limits import MAX_MISSION_WAYPOINTS
 from orange_plan.paths import csv_delimiter_hint, read_json, require_file
 
 NAV_LAND, NAV_LOITER_TIME = 21, 19
 PASSIVE_COMMANDS = {
-    115: "CONDITION_YAW", 183: "DO_SET_SERVO", 184: "DO_REPEAT_SERVO", 189: "DO_LAND_START",
+    112: "CONDITION_DELAY", 115: "CONDITION_YAW", 183: "DO_SET_SERVO", 184: "DO_REPEAT_SERVO", 189: "DO_LAND_START",
     195: "DO_SET_ROI_LOCATION", 197: "DO_SET_ROI_NONE", 201: "DO_SET_ROI",
     203: "DO_DIGICAM_CONTROL", 205: "DO_MOUNT_CONTROL", 206: "DO_SET_CAM_TRIGG_DIST",
     530: "SET_CAMERA_MODE", 1000: "DO_GIMBAL_MANAGER_PITCHYAW", 2000: "IMAGE_START_CAPTURE",
@@ -66,6 +67,9 @@ DEFAULT_ACCEPTANCE_RADIUS_M = 2.0
 WPNAV_RADIUS; PX4 sets NAV_ACC_RAD) [m]: the turn there starts this far before the waypoint."""
 HOME_MATCH_M = 1.0
 """A last waypoint this close to home (horizontally) is the mission's way home [m]."""
+MIN_SPEED_MPS = 0.01
+"""Slowest commanded speed accepted [m/s]: slower is a slip of units, not a mission (a
+kilometre would take a day)."""
 ROUTE_COLUMNS = ("x_m", "y_m", "z_m", "speed_mps", "stay_s", "corner_radius_m")
 """Route CSV columns (the first two required)."""
 QGC_SUFFIXES = (".plan",)
@@ -135,6 +139,13 @@ class Mission:
             raise InputError(f"{self.source}: take-off altitude {self.takeoff_alt_m!r} must be "
                              "a finite number >= 0 m above home")
 
+    def turning_without_slowing(self) -> Mission:
+        """The same mission with every waypoint but the last passed without slowing (corner
+        radius inf): the motion a plan's tour is modelled with."""
+        wps = self.waypoints
+        passed = [replace(w, corner_radius_m=math.inf) for w in wps[:-1]]
+        return replace(self, waypoints=(*passed, wps[-1]))
+
     @property
     def xyz_m(self) -> np.ndarray:
         """Waypoint positions, shape (n, 3) [m]."""
@@ -150,8 +161,10 @@ def _check_waypoint(wp: MissionWaypoint, where: str) -> None:
         raise InputError(f"{where}: altitude {wp.z_m:g} m is below home (the ground)")
     if wp.stay_s < 0:
         raise InputError(f"{where}: hold time {wp.stay_s:g} s must be >= 0")
-    if wp.speed_mps is not None and not (math.isfinite(wp.speed_mps) and wp.speed_mps > 0):
-        raise InputError(f"{where}: speed {wp.speed_mps!r} m/s must be > 0")
+    if wp.speed_mps is not None and not (math.isfinite(wp.speed_mps)
+                                         and wp.speed_mps >= MIN_SPEED_MPS):
+        raise InputError(f"{where}: speed {wp.speed_mps!r} m/s must be >= {MIN_SPEED_MPS:g} "
+                         "(m/s)")
     if wp.corner_radius_m is not None and not wp.corner_radius_m >= 0:  # inf: no slowing
         raise InputError(f"{where}: corner radius {wp.corner_radius_m!r} m must be >= 0")
 
@@ -266,15 +279,24 @@ def _number(value, where: str) -> float:
         raise InputError(f"{where}: {value!r} is not a number") from None
 
 
+def _check_count(n: int, source: str, what: str) -> None:
+    """Refuse more than ``MAX_MISSION_WAYPOINTS`` items before building them."""
+    if n > MAX_MISSION_WAYPOINTS:
+        raise InputError(f"{source}: {n:,} {what}, more than the {MAX_MISSION_WAYPOINTS:,} "
+                         "waypoints a check takes")
+
+
 def mission_from_items(home, items, origin, source: str,
                        acceptance_radius_m: float = DEFAULT_ACCEPTANCE_RADIUS_M) -> Mission:
     """A Mission from MAVLink items (module docstring): ``home`` = (lat, lon, alt AMSL)."""
+    _check_count(len(items), source, "mission items")
     home_lat, home_lon, home_alt = home
     if not all(math.isfinite(v) for v in home) or abs(home_lat) > 90 or abs(home_lon) > 180:
         raise InputError(f"{source}: missing home: home position {tuple(home)} is not a valid "
                          "latitude/longitude/altitude")
     frame_origin = origin or SimpleNamespace(lat_deg=home_lat, lon_deg=home_lon, alt_m=home_alt)
     hx, hy = (float(v) for v in latlon_to_xy(frame_origin, home_lat, home_lon))
+    placed = _placed(items, frame_origin, source)
     points = [MissionWaypoint(hx, hy, 0.0)]
     speed, takeoff, returns, landed = None, None, False, False
     for k, it in enumerate(items, start=1):
@@ -291,7 +313,7 @@ def mission_from_items(home, items, origin, source: str,
         elif it.command == NAV_TAKEOFF:
             takeoff = _altitude(it, home_alt, where)
         elif it.command in (NAV_WAYPOINT, NAV_LOITER_TIME):
-            x, y, z = _position(it, frame_origin, home_alt, where)
+            (x, y), z = placed[k], _altitude(it, home_alt, where)
             hold = it.params[0] if np.isfinite(it.params[0]) else 0.0
             radius = it.params[1] if it.command == NAV_WAYPOINT else 0.0
             radius = radius if np.isfinite(radius) and radius > 0 else acceptance_radius_m
@@ -302,7 +324,7 @@ def mission_from_items(home, items, origin, source: str,
         elif it.command == NAV_LAND:
             if np.isfinite(it.params[4]) and np.isfinite(it.params[5]) and (
                     it.params[4], it.params[5]) != (0.0, 0.0):
-                x, y, _ = _position(it, frame_origin, home_alt, where)
+                x, y = placed[k]
                 last = points[-1]
                 points.append(MissionWaypoint(x, y, last.z_m, speed, 0.0, None))
             landed = True
@@ -333,14 +355,29 @@ def _altitude(it: MissionItem, home_alt: float, where: str) -> float:
     return float(z)
 
 
-def _position(it: MissionItem, origin, home_alt: float, where: str):
-    lat, lon = it.params[4], it.params[5]
-    if not (math.isfinite(lat) and math.isfinite(lon)):
-        raise InputError(f"{where}: latitude/longitude ({lat}, {lon}) is not a number")
-    if abs(lat) > 90 or abs(lon) > 180:
-        raise InputError(f"{where}: latitude/longitude ({lat}, {lon}) is out of range")
-    x, y = latlon_to_xy(origin, lat, lon)
-    return float(x), float(y), _altitude(it, home_alt, where)
+def _placed(items, origin, source: str) -> dict[int, tuple[float, float]]:
+    """Map-frame (x, y) of every item with a position (1-based item number -> [m]), in one
+    conversion; a waypoint's latitude/longitude that is not a number is refused."""
+    numbers, lat, lon = [], [], []
+    for k, it in enumerate(items, start=1):
+        if it.command in (NAV_WAYPOINT, NAV_LOITER_TIME) or (
+                it.command == NAV_LAND and (it.params[4], it.params[5]) != (0.0, 0.0)
+                and np.isfinite(it.params[4]) and np.isfinite(it.params[5])):
+            a, b = it.params[4], it.params[5]
+            if not (math.isfinite(a) and math.isfinite(b)):
+                raise InputError(f"{source}: item {k}: latitude/longitude ({a}, {b}) is not a "
+                                 "number")
+            if abs(a) > 90 or abs(b) > 180:
+                raise InputError(f"{source}: item {k}: latitude/longitude ({a}, {b}) is out "
+                                 "of range")
+            numbers.append(k)
+            lat.append(a)
+            lon.append(b)
+    if not numbers:
+        return {}
+    x, y = latlon_to_xy(origin, np.array(lat), np.array(lon))
+    return {k: (float(a), float(b)) for k, a, b in zip(numbers, np.atleast_1d(x),
+                                                         np.atleast_1d(y))}
 
 
 # --- map-frame and GeoJSON missions -------------------------------------------------------------
@@ -359,6 +396,7 @@ def read_route_csv(path: Path) -> Mission:
     if missing:
         raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, z_m, "
                          "speed_mps, stay_s, corner_radius_m])" + csv_delimiter_hint(frame.columns))
+    _check_count(len(frame), str(path), "rows")
     try:
         cols = {c: frame[c].to_numpy(dtype=float) if c in frame else np.full(len(frame), np.nan)
                 for c in ROUTE_COLUMNS}
@@ -407,6 +445,7 @@ def read_geojson(path: Path, origin) -> Mission:
     if not isinstance(geom, dict) or geom.get("type") != "LineString":
         raise InputError(f"{path}: no LineString (a mission GeoJSON is a LineString in "
                          "longitude/latitude, or a plan with a tour)")
+    _check_count(len(geom.get("coordinates") or []), str(path), "positions")
     coords = _coords(geom, path)
     if coords.shape[1] < 2 or len(coords) < 2:
         raise InputError(f"{path}: the LineString needs at least two [lon, lat] positions")
@@ -439,6 +478,7 @@ def _plan_tour(tour: dict, path: Path) -> Mission:
     geom = tour.get("geometry") or {}
     if geom.get("type") != "LineString":
         raise InputError(f"{path}: the tour must be a LineString, got {geom.get('type')!r}")
+    _check_count(len(geom.get("coordinates") or []), str(path), "tour vertices")
     xy = _coords(geom, path)[:, :2]
     if len(xy) < 2 or not np.all(np.isfinite(xy)):
         raise InputError(f"{path}: the tour needs at least two finite (x, y) vertices")

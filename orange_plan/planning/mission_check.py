@@ -57,7 +57,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, OrangeError
 from orange_plan.export.missions_in import Mission, MissionWaypoint
 from orange_plan.limits import (
     MAX_MISSION_HOME_SAMPLES,
@@ -66,6 +66,7 @@ from orange_plan.limits import (
 )
 from orange_plan.physics.pathcost import Steps, max_step_m, subdivide
 from orange_plan.physics.profile import (
+    CREEP_FRACTION,
     SAMPLE_DT_S,
     STOP_EVERY_S,
     TURN_SPREAD_S,
@@ -86,6 +87,9 @@ DEFAULT_CLIMB_MPS = 2.5
 DEFAULT_DESCENT_MPS = 1.5
 """Default vertical descent speed of an aerial robot without ``robot.descent_mps`` [m/s]
 (ArduPilot's WPNAV_SPEED_DN default)."""
+AT_HOME_M = 1e-3
+"""A point this close to home (horizontally) is home: no way home to fly from it [m] (a
+waypoint read from latitude/longitude lands within round-off of it)."""
 VERTICAL_EPS_M = 1e-6
 """A stage whose horizontal length is below this is vertical [m]."""
 VERDICTS = ("fits", "fits_without_reserve", "does_not_fit")
@@ -181,6 +185,9 @@ class MissionCheck:
     reserve_rule: str
     start_margin_J: float = 0.0
     """Margin at home before the take-off (nothing used, nothing to fly home) [J]."""
+    warnings: tuple[str, ...] = ()
+    """Legs that leave the map's free space (through an obstacle, a no-go zone or out of the
+    boundary, within the robot's keep-away): the energy is that of the straight leg."""
 
     @property
     def margin_J(self) -> np.ndarray:
@@ -197,7 +204,7 @@ class MissionCheck:
             "verdict": self.verdict, "first_failing_waypoint": self.first_failing_waypoint,
             "point_of_no_return": None if pnr is None else {"waypoint": pnr[0],
                                                             "distance_m": pnr[1]},
-            "wind_xy_mps": list(self.wind_xy_mps),
+            "wind_xy_mps": list(self.wind_xy_mps), "warnings": list(self.warnings),
             "worst_wind": None if self.worst_wind is None else {
                 "from_deg": self.worst_wind[0], "energy_J": self.worst_wind[1]},
             "legs": [leg.as_dict() for leg in self.legs],
@@ -287,19 +294,26 @@ def _stages(mission: Mission, robot: _Robot) -> list[_Stage]:
         if robot.aerial else 0.0
     stages = []
     here = (*home, takeoff)
+    waiting_s = wps[0].stay_s  # a hold at home before anything flies
     if takeoff > 0:
         stages.append(_Stage("takeoff", 0, 0, (*home, 0.0), here,
-                             _leg_speed(robot, None, (*home, 0.0), here), wps[0].stay_s))
+                             _leg_speed(robot, None, (*home, 0.0), here), waiting_s))
+        waiting_s = 0.0
     for i in range(len(wps) - 1):
         end = (wps[i + 1].x_m, wps[i + 1].y_m, z[i + 1])
-        if np.linalg.norm(np.subtract(end, here)) == 0:
-            continue  # a repeated waypoint: nothing to fly (its hold still counts below)
+        if np.linalg.norm(np.subtract(end, here)) == 0:  # a repeated waypoint: only its hold
+            if stages:
+                stages[-1] = replace(stages[-1], hold_s=stages[-1].hold_s + wps[i + 1].stay_s)
+            else:
+                waiting_s += wps[i + 1].stay_s
+            continue
         stages.append(_Stage("leg", i, i + 1, here, end,
                              _leg_speed(robot, wps[i].speed_mps, here, end), wps[i + 1].stay_s,
-                             wps[0].stay_s if not stages else 0.0))
+                             waiting_s))
+        waiting_s = 0.0
         here = end
     last = len(wps) - 1
-    if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > 0:
+    if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
         end = (*home, here[2])
         stages.append(_Stage("return", last, 0, here, end,
                              _leg_speed(robot, wps[last].speed_mps, here, end)))
@@ -330,8 +344,8 @@ def _with_corners(stages: list[_Stage], mission: Mission, robot: _Robot) -> list
         else:
             speed = math.sqrt(robot.accel_mps2 * radius / math.tan(turn / 2)) \
                 if turn < math.pi - 1e-9 else 0.0
-            if speed < STOP_BELOW_MPS:
-                speed = 0.0  # a hairpin: the robot stops and turns rather than creep round it
+            if speed < max(STOP_BELOW_MPS, CREEP_FRACTION * max(st.speed, nxt.speed)):
+                speed = 0.0  # a hairpin, or slower than the Driver's creep: a stop there
         out.append(replace(st, corner_mps=speed, corner_r_m=0.0 if radius == math.inf
                            else radius))
     return out
@@ -412,12 +426,13 @@ def _step_speeds(stages: list[_Stage], steps: Steps, robot: _Robot, dt: float) -
     edges = np.r_[0.0, np.cumsum(steps.length_m)]
     stage_end = edges[np.searchsorted(steps.segment, np.arange(len(stages)), side="right")]
     a = robot.accel_mps2
+    top = max(st.speed for st in stages)  # braking may have to start on an earlier stage
     for k, st in enumerate(stages[:-1]):
         v_c = st.corner_mps
         if not (0 < v_c < max(st.speed, stages[k + 1].speed)):
             continue
         s_c, r = stage_end[k], st.corner_r_m
-        reach = r + (st.speed**2 - v_c**2) / (2 * a) + a * dt * dt
+        reach = r + (top**2 - v_c**2) / (2 * a) + a * dt * dt
         lo = np.searchsorted(edges, s_c - reach - 1e-9, side="left")
         hi = np.searchsorted(edges, s_c + r + 1e-9, side="right")
         idx = np.arange(max(lo - 1, 0), min(hi, speed.size))
@@ -518,6 +533,9 @@ def _drive_run(edges, speeds, accel: float, dt: float, duty: float) -> dict:
     guess = int(2 * (edges[-1] / slow + 2 * float(np.max(speeds)) / accel) / (dt * duty)) + 16
     parts = [driver.run(guess)]
     while not driver.finished:
+        if len(parts) >= 8:  # the guess is an upper bound several times over
+            raise OrangeError(f"a mission run of {edges[-1]:g} m did not end in "
+                              f"{8 * guess * dt:g} s of driving")
         parts.append(driver.run(guess))
     if len(parts) == 1:
         return parts[0]
@@ -577,7 +595,7 @@ def _check_placement(mission: Mission, world, aerial: bool) -> None:
 
 def _samples_per_m(stages: list[_Stage], duty: float, step_m: float) -> float:
     """Upper bound of samples (or sub-steps) per metre of the stages' flight."""
-    slowest = max(min(st.speed for st in stages), 1e-3)
+    slowest = min(st.speed for st in stages)
     return max(1.0 / (slowest * SAMPLE_DT_S * duty), 1.0 / step_m)
 
 
@@ -645,7 +663,27 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
         tuple(legs), total, float(np.sqrt(ctx.model.predictive_variance_J2(total_g, total))),
         float(duration.sum()), float(avail), total_reserve, verdict, failing,
         _point_of_no_return(legs, start_margin), conditions.wind_xy_mps, worst,
-        rule.describe(), start_margin)
+        rule.describe(), start_margin,
+        _leaving_free_space(stages, ctx.world) if in_map_frame else ())
+
+
+MAX_WARNED_LEGS = 5
+"""Legs named one by one in the warning about free space (the rest are counted)."""
+
+
+def _leaving_free_space(stages: list[_Stage], world) -> tuple[str, ...]:
+    """One warning naming the legs whose straight line leaves the map's free space."""
+    flat = [st for st in stages if not st.vertical]
+    if not flat:
+        return ()
+    free = world.segments_free([st.start[:2] for st in flat], [st.end[:2] for st in flat])
+    bad = [st for st, ok in zip(flat, free) if not ok]
+    if not bad:
+        return ()
+    named = ", ".join(f"{st.kind} {st.from_wp} -> {st.to_wp}" for st in bad[:MAX_WARNED_LEGS])
+    more = f" and {len(bad) - MAX_WARNED_LEGS} more" if len(bad) > MAX_WARNED_LEGS else ""
+    return (f"{len(bad)} leg(s) leave the map's free space (an obstacle, a no-go zone or the "
+            f"boundary, within the robot's keep-away): {named}{more}",)
 
 
 def mission_samples(mission: Mission, scenario, *, in_map_frame: bool = True):
@@ -679,7 +717,7 @@ def _ways_home(stages, mission, world, robot, conditions, step_m, model):
             continue  # the end of the mission: nothing left to fly
         here = st.end
         way = []
-        if math.hypot(here[0] - home[0], here[1] - home[1]) > 0:
+        if math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
             end = (*home, here[2])
             way.append(_Stage("return", st.to_wp, 0, here, end,
                               _leg_speed(robot, return_speed, here, end)))
