@@ -35,7 +35,7 @@ How it is solved:
    ``v = sqrt(accel_max R)`` (lateral acceleration at most ``accel_max``) by then, braking at
    ``accel_max``. The arc's length replaces the polyline's ``2 r`` around the waypoint
    (``_round_corners``: 21 % shorter at 90 degrees; a survey of 40 m legs on 20 m radii is
-   mostly arcs). A corner whose speed would be below ``STOP_BELOW_MPS`` (a hairpin) is a stop.
+   mostly arcs).
 3. Energy: the scenario's energy model (``EnergyModel.power_W``) on the motion samples
    (speed, acceleration, grade, heading, wind, yaw rate), a hold being samples at rest, so any
    term the model has (a calibrated one included) counts; the variance is the model's
@@ -97,10 +97,6 @@ HOME_BATCH_SAMPLES = 500_000
 """Samples of ways home driven at once (bounds the memory of a long mission's check)."""
 WIND_SWEEP_DEG = 10.0
 """Step of the worst-wind-direction sweep [deg]."""
-STOP_BELOW_MPS = 0.5
-"""A corner whose allowed speed is below this is a stop [m/s]: on a hairpin (a turn of nearly
-180 degrees) the arc's radius and speed tend to zero; reversing takes the velocity through
-zero, so the robot brakes to a stop and accelerates again whatever the corner radius."""
 
 
 # --- the answer -------------------------------------------------------------------------------
@@ -344,8 +340,8 @@ def _with_corners(stages: list[_Stage], mission: Mission, robot: _Robot) -> list
         else:
             speed = math.sqrt(robot.accel_mps2 * radius / math.tan(turn / 2)) \
                 if turn < math.pi - 1e-9 else 0.0
-            if speed < max(STOP_BELOW_MPS, CREEP_FRACTION * max(st.speed, nxt.speed)):
-                speed = 0.0  # a hairpin, or slower than the Driver's creep: a stop there
+            if speed < CREEP_FRACTION * max(st.speed, nxt.speed):
+                speed = 0.0  # slower than the Driver's creep: a stop at the waypoint
         out.append(replace(st, corner_mps=speed, corner_r_m=0.0 if radius == math.inf
                            else radius))
     return out
