@@ -66,6 +66,7 @@ NUMBER_SCHEMA: dict[str, dict[str, tuple[Any, Callable]]] = {
         "radius_m": (0.0, non_negative),
         "climb_mps": (ABSENT, positive),
         "descent_mps": (ABSENT, positive),
+        "landing_mps": (ABSENT, positive),
     },
     "losses": {
         "battery": (REQUIRED, _fraction_open),
@@ -137,6 +138,8 @@ class Robot:
     default, capped at ``v_max_mps``)."""
     descent_mps: float | None = None
     """Vertical descent speed of an aerial robot [m/s] (None: the default, as ``climb_mps``)."""
+    landing_mps: float | None = None
+    """Descent speed of an aerial robot's final landing [m/s] (None: ``descent_mps``)."""
 
 
 @dataclass(frozen=True)

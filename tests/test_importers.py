@@ -119,13 +119,13 @@ def test_bag_without_battery_is_refused(tmp_path):
 def test_unknown_format_lists_the_allowed_ones(tmp_path):
     path = tmp_path / "notes.txt"
     path.write_text("hello")
-    with pytest.raises(RecordingError, match="one of ulog, rosbag1, rosbag2, borealtc, tum_bmw_i3"):
+    with pytest.raises(RecordingError, match="one of ulog, rosbag1, rosbag2, borealtc, tum_bmw_i3, wadl"):
         guess_format(path)
     with pytest.raises(RecordingError, match="unknown format 'px5'; allowed: ulog"):
         read_log(path, "px5")
     with pytest.raises(RecordingError, match=r"no metadata\.yaml"):
         guess_format(tmp_path)
-    assert set(FORMATS) == {"ulog", "rosbag1", "rosbag2", "borealtc", "tum_bmw_i3"}
+    assert set(FORMATS) == {"ulog", "rosbag1", "rosbag2", "borealtc", "tum_bmw_i3", "wadl"}
 
 
 # --- the data sets' own layouts (synthetic copies, then a few real runs) -------------------------

@@ -11,9 +11,10 @@ from orange_plan.cli import JsonOpt, app, handles_errors, out, print_json, progr
 
 LogArg = Annotated[Path, typer.Argument(
     help="Robot log: PX4 .ulg, ROS 1 .bag, ROS 2 bag (folder, .db3, .mcap), BorealTC "
-         "pro_NN.csv, TUM BMW i3 TripAxx.csv.gz.")]
+         "pro_NN.csv, TUM BMW i3 TripAxx.csv.gz, WADL DJI M100 flight <id>.csv (its "
+         ".route.csv, .wp_events.csv and .json beside it).")]
 FormatOpt = Annotated[str | None, typer.Option(
-    "--format", help="ulog, rosbag1, rosbag2, borealtc or tum_bmw_i3 (default: guessed).")]
+    "--format", help="ulog, rosbag1, rosbag2, borealtc, tum_bmw_i3 or wadl (default: guessed).")]
 OutOpt = Annotated[Path, typer.Option("-o", "--output", help="Recording to write (.csv or .parquet).")]
 
 

@@ -16,6 +16,7 @@ from orange_plan.telemetry.importers.borealtc import is_borealtc, read_borealtc
 from orange_plan.telemetry.importers.rosbag import read_rosbag1, read_rosbag2
 from orange_plan.telemetry.importers.tum_bmw_i3 import is_tum_bmw_i3, read_tum_bmw_i3
 from orange_plan.telemetry.importers.ulog import read_ulog
+from orange_plan.telemetry.importers.wadl import is_wadl, read_wadl
 
 FORMATS: dict[str, Callable[[Path], pd.DataFrame]] = {
     "ulog": read_ulog,
@@ -23,6 +24,7 @@ FORMATS: dict[str, Callable[[Path], pd.DataFrame]] = {
     "rosbag2": read_rosbag2,
     "borealtc": read_borealtc,
     "tum_bmw_i3": read_tum_bmw_i3,
+    "wadl": read_wadl,
 }
 """Format names accepted by ``orange-plan convert --format``."""
 
@@ -66,6 +68,8 @@ def guess_format(path: str | Path) -> str:
         return "borealtc"
     if is_tum_bmw_i3(path):
         return "tum_bmw_i3"
+    if is_wadl(path):
+        return "wadl"
     raise RecordingError(
         f"{path}: cannot tell the log format; give --format, one of {allowed_formats()}"
     )
