@@ -136,6 +136,7 @@ COVERED_ELSEWHERE = {
     "bench calibration": ("test_cli_simulate.py::"
                           "test_bench_calibration_reports_offline_and_online_on_real_runs"),
     "report paper": "test_report.py::test_reduced_report_is_complete_and_in_range",
+    "bench flights": "test_wadl.py::test_bench_flights_runs_on_three_flights",
 }
 """Commands whose ``--json`` is costly to produce: the test that already runs each compares
 its output with docs/json.md (``compare``) instead of running it again here."""

@@ -188,6 +188,9 @@ def test_bench_flights_runs_on_three_flights():
                                    "--json")
     assert code == 0, stderr
     out = json.loads(stdout)
+    from test_json_docs import compare
+
+    compare("bench flights", out)  # docs/json.md lists exactly these keys
     rows, summary = out["flights"], out["summary"]
     assert len(rows) == 3 and summary["folds"] == 3
     assert set(summary["median_abs_err_pct"]) == {"recording", "route", "per_metre",
