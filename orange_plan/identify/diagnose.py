@@ -119,10 +119,10 @@ sidewalk robot's drag at 1 m/s is a fraction of a watt, and a wind fitted to it 
 heading-dependent fluke (a slope met in one direction) scaled up to gale force."""
 MAX_WIND_MPS = 30.0
 """Largest wind (or water current) a finding may claim [m/s]."""
-SCANNED = {"payload"}
-"""Candidates whose change time is the best of a scan over the whole run: the largest of the
-scan's t statistics is itself large, so their t must exceed MIN_T by the scan's typical
-maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
+SCANNED = {"payload", "surface_label"}
+"""Candidates whose change time (a payload's) or delay (a surface label's, ``LABEL_LAGS_S``) is
+the best of a scan: the largest of the scan's t statistics is itself large, so their t must
+exceed MIN_T by the scan's typical maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
 that maximum grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff)
 of independent tests: on the null cases the scan's largest t was 1.7-3.2."""
 AS_GOOD_HELD_OUT = "as good held out"
@@ -131,6 +131,13 @@ MASK_EACH_OTHER = "each masks the other"
 RIVALS = 4
 """Single candidates (the best by held-out gain) checked as alternatives to a found term
 [-]."""
+MAX_LABEL_LAG_S = 5.0
+"""Largest delay of a recording's ``surface`` labels behind the terrain under the wheels that
+is looked for [s]: a terrain classifier labels what it has seen over a window of a second or
+a few (vibration spectra, a camera's look-ahead averaged), and a logging stack adds tenths."""
+MIN_LABEL_SHARE = 0.05
+"""A surface label gets its own rolling coefficient when it covers at least this share of
+the moving samples [-] (a label seen for a few seconds is a classifier's slip)."""
 N_BLOCKS = 20
 """Equal-time blocks of the recording; fold k holds out blocks k, k + N_FOLDS, ... [-]."""
 N_FOLDS = 5
@@ -140,6 +147,9 @@ PRIOR_SCALE = 10.0
 """The scenario's a priori standard errors are widened by this factor for the baseline
 refit, as in calibration: they steer only what the recording cannot separate [-]."""
 
+LABEL_CANDIDATE = "surface_label"
+"""Per-surface rolling read from the recording's ``surface`` labels, where the map has no
+surfaces (reported as ``surface_rolling``, variant ``surface_label``)."""
 TERM_CANDIDATES = ("ancillary", "sensor_rate", "hover", "rolling", "surface_rolling",
                    "aero_drag", "grade", "inertia", "regen", "turning", "turning_torque",
                    "hvac", "hvac_ambient", "heater", "battery_resistance",
@@ -643,6 +653,97 @@ def _surfaces_seen(d: Design, share: float = 0.05) -> list[str]:
             if np.count_nonzero((code == i) & moving) >= share * max(1, moving.sum())]
 
 
+# --- per-surface rolling from the recording's surface labels -------------------------------
+
+
+def surface_labels(d: Design) -> tuple[np.ndarray, list[str], str]:
+    """The recording's ``surface`` labels as codes: (code per sample, -1 for a label with no
+    coefficient of its own; the labels that get one; the reference label).
+
+    The reference is the map's default surface when the labels use its name, else the label
+    most driven on: the baseline's one rolling coefficient stands for it, and every other
+    label seen on at least ``MIN_LABEL_SHARE`` of the moving samples gets its change from it
+    (all of them would repeat the baseline's column)."""
+    if "surface_labels" not in d.cache:
+        raw = d.frame["surface"].astype(str).str.strip().str.lower().to_numpy()
+        moving = np.asarray(d.state.speed_mps) > 0
+        names, counts = np.unique(raw[moving], return_counts=True)
+        known = [(c, n) for n, c in zip(names, counts)
+                 if n not in ("", "nan", "none") and c >= MIN_LABEL_SHARE * max(1, moving.sum())]
+        default = str(d.world.default_surface_name).lower()
+        ranked = [n for _, n in sorted(known, reverse=True)]
+        reference = default if default in ranked else (ranked[0] if ranked else "")
+        own = sorted(n for n in ranked if n != reference)
+        code = np.full(d.n, -1)
+        for i, name in enumerate(own):
+            code[raw == name] = i
+        d.cache["surface_labels"] = (code, own, reference)
+    return d.cache["surface_labels"]
+
+
+def _label_columns(d: Design, lag_samples: int) -> np.ndarray:
+    """Rolling column on each own label's samples, the labels read ``lag_samples`` later (a
+    label at t describes the ground at t - lag; the last label held) [W per kg]."""
+    code, own, _ = surface_labels(d)
+    rolling = d.columns[:, d.base.names.index("rolling_kg")]
+    later = code[np.minimum(np.arange(d.n) + lag_samples, d.n - 1)]
+    return np.stack([rolling * (later == i) for i in range(len(own))], axis=1)
+
+
+def _label_effect(d: Design, _resid, rows) -> Effect:
+    """Per-surface change of the rolling coefficient read from the recording's labels, at
+    the labels' delay (``label_lag``); the baseline's rolling coefficient stands for the
+    reference label (``surface_labels``)."""
+    rows = np.ones(d.n, bool) if rows is None else rows
+    lag_samples, lag_s, sd = label_lag(d, rows)
+    _, own, _ = surface_labels(d)
+    base = d.base.coefficient("rolling_kg")
+    return Effect(_label_columns(d, lag_samples), tuple(f"delta_rolling_kg_{s}" for s in own),
+                  np.full(len(own), -base), np.full(len(own), np.inf),
+                  {"label_lag_s": (lag_s, sd)})
+
+
+def label_lag(d: Design, rows: np.ndarray) -> tuple[int, float, float]:
+    """The labels' delay behind the ground under the wheels: (whole samples, seconds, its
+    standard error [s]). Every delay of whole samples up to ``MAX_LABEL_LAG_S`` is tried: the
+    label columns and the baseline's columns are fitted on the training ``rows`` to the
+    baseline's residual, and the delay that leaves the least is taken; its standard error is
+    half the span of delays within one unit of chi-square (noise variance x autocorrelation
+    time) of the best, as for a payload's change time. At a wrong delay each change of
+    surface charges the new surface's rolling to the old one's last metres. Fitted against
+    the baseline alone (not the candidates chosen before it), once per set of rows."""
+    key = ("label_lag", hash(np.packbits(rows).tobytes()))
+    if key in d.cache:
+        return d.cache[key]
+    resid = (d.target - d.columns @ d.base.theta)[rows]
+    dt = float(np.median(np.diff(d.t_s)))
+    lags = np.arange(round(MAX_LABEL_LAG_S / dt) + 1) if dt > 0 else np.zeros(1, int)
+    ss = np.empty(lags.size)
+    for j, k in enumerate(lags):
+        x = np.hstack([d.columns, _label_columns(d, int(k))])[rows]
+        coef = np.linalg.lstsq(x, resid, rcond=None)[0]
+        ss[j] = float(np.sum((resid - x @ coef) ** 2))
+    best = int(np.argmin(ss))
+    tau = autoregressive_inflation(d.target - d.columns @ d.base.theta, d.samples,
+                                   INFLATION_BLOCK_S)
+    near = ss <= ss[best] + float(np.mean(resid**2)) * tau
+    sd = max(0.5 * float(np.ptp(lags[near])) * dt, dt)
+    d.cache[key] = (int(lags[best]), float(lags[best] * dt), sd)
+    return d.cache[key]
+
+
+def _needs_labels(d: Design):
+    if "surface" not in d.columns_of:
+        return "the recording has no surface column"
+    if d.world.map.surfaces:
+        return "the map has surfaces (surface_rolling reads them)"
+    if "rolling_kg" not in d.base.names:
+        return "no rolling term to differ by surface"
+    if not surface_labels(d)[1]:
+        return f"the surface labels name one surface on {100 * (1 - MIN_LABEL_SHARE):.0f} % of the drive"
+    return None
+
+
 def _mass_per_kg_W(d: Design) -> np.ndarray:
     """Battery power per kg of extra moving mass at the baseline coefficients [W/kg]: the
     derivative of ``model_builder.mass_scales`` (the simulator's payload) at no extra mass,
@@ -917,6 +1018,7 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
     "battery_temperature": (_column("battery_C"), "battery temperature [C]"),
     "drift": (lambda d: d.t_s, "time since start [s]"),
     "payload": (lambda d: d.t_s, "time since start [s]"),
+    LABEL_CANDIDATE: (lambda d: surface_labels(d)[0], "surface label (-1: the reference)"),
     "wind": (lambda d: np.degrees(np.arctan2(d.state.dir_x, d.state.dir_y)) % 360.0,
              "heading [deg from north]"),
 }
@@ -929,6 +1031,8 @@ def candidates() -> list[Candidate]:
                      _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]
     out.append(Candidate("payload", _needs_mass, _payload_effect, _feature(*_FEATURES["payload"])))
     out.append(Candidate("wind", _needs_wind, _wind_effect, _feature(*_FEATURES["wind"])))
+    out.append(Candidate(LABEL_CANDIDATE, _needs_labels, _label_effect,
+                         _feature(*_FEATURES[LABEL_CANDIDATE])))
     return out
 
 
@@ -1424,6 +1528,9 @@ def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit,
     explains = float(np.clip(100.0 * ss_gain / ss_base, 0.0, 100.0)) if ss_base > 0 else 0.0
     values, label = cand.feature(d)
     evidence = _evidence(d, cand, values, label, baseline, without, improved)
+    if cand.id == LABEL_CANDIDATE:
+        evidence += ("; the map has no surfaces for these coefficients: the model keeps one "
+                     "rolling coefficient (draw the surfaces on the map to plan with them)")
     if alternatives:
         evidence += "; " + ", ".join(_alternative_sentence(a) for a in alternatives) + (
             ": this recording cannot tell them apart")
@@ -1493,12 +1600,39 @@ def _physical_params(d: Design, fit: Fit, cand: Candidate, params: dict, stderr:
         seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d)}
         params = {k: v for k, v in params.items() if k in seen}
         stderr = {k: v for k, v in stderr.items() if k in seen}
+    if cand.id == LABEL_CANDIDATE:
+        params, stderr = _label_params(d, fit, params, stderr)
     if cand.id == "wind":
         params.pop("wind_share", None)
         stderr.pop("wind_share", None)
         params.pop("wind_change_mps", None)
         stderr.pop("wind_change_mps", None)
     return params, stderr
+
+
+def _label_params(d: Design, fit: Fit, params: dict, stderr: dict):
+    """Per-label rolling as ``rolling_kg_<label>`` [kg]: the reference label's is the fitted
+    ``rolling_kg``, every other's that plus its fitted change (its standard error from the
+    joint fit's covariance of the two); the labels' delay ``label_lag_s`` [s] as fitted."""
+    base = fit.names.index("rolling_kg")
+    cov = _fit_covariance(fit)
+    _, own, reference = surface_labels(d)
+    out = {f"rolling_kg_{reference}": float(fit.theta[base])}
+    sds = {f"rolling_kg_{reference}": float(fit.sd[base])}
+    for label in own:
+        i = fit.names.index(f"{LABEL_CANDIDATE}.delta_rolling_kg_{label}")
+        out[f"rolling_kg_{label}"] = float(fit.theta[base] + fit.theta[i])
+        sds[f"rolling_kg_{label}"] = float(np.sqrt(max(
+            cov[base, base] + cov[i, i] + 2 * cov[base, i], 0.0)))
+    out["label_lag_s"], sds["label_lag_s"] = params["label_lag_s"], stderr["label_lag_s"]
+    return out, sds
+
+
+def _fit_covariance(fit: Fit) -> np.ndarray:
+    """The coefficients' covariance as ``fit_design`` inflates it, without its prior (a
+    finding's report) [unit^2]: ``(X'X)^+ s^2 tau``."""
+    s2 = fit.rmse_W**2 * fit.tau
+    return np.linalg.pinv(fit.x.T @ fit.x) * s2
 
 
 def payload_mass_kg(d: Design, fit: Fit) -> tuple[float, float]:
@@ -1598,6 +1732,10 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
         if cand.id == "payload":
             changes["payload_kg"] = next(f.params["payload_kg"] for f in findings
                                          if f.term == "payload")
+        elif cand.id == LABEL_CANDIDATE:
+            # the map has no surfaces to hang the coefficients on: the finding reports them
+            # and the model keeps its one rolling coefficient
+            continue
         elif cand.id == "wind":
             speed, from_deg = wind_speed_and_from(own["wind_x_mps"], own["wind_y_mps"])
             # the drag under that wind is the one fitted with it (the baseline's coefficient
