@@ -84,11 +84,12 @@ from orange_plan.telemetry.recording import Recording, recording_from_frame, wri
 CONCEALABLE: tuple[str, ...] = (
     "ancillary", "sensor_rate", "hover", "rolling", "surface_rolling", "aero_drag", "grade",
     "inertia", "regen", "turning", "wind", "payload", "hvac", "battery_resistance",
-    "battery_temperature", "drift", "surface_label",
+    "battery_temperature", "drift", "surface_label", "hvac_trip",
 )
-"""Vocabulary ids (SPEC §6) a case can conceal, and ``surface_label``: per-surface rolling on a
-map without surfaces, the recording carrying a terrain classifier's delayed ``surface``
-labels (reported as ``surface_rolling``)."""
+"""Vocabulary ids (SPEC §6) a case can conceal, and two variants: ``surface_label``, per-surface
+rolling on a map without surfaces, the recording carrying a terrain classifier's delayed
+``surface`` labels (reported as ``surface_rolling``); ``hvac_trip``, the ``hvac`` effect on a
+trip whose ambient temperature spans only 3-10 K (reported as ``hvac``)."""
 
 PAIRS: tuple[tuple[str, str], ...] = (
     ("turning", "payload"), ("wind", "payload"), ("surface_rolling", "battery_resistance"),
@@ -103,7 +104,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "regen": ("ground",), "turning": ("ground",), "wind": ("aerial",),
     "payload": ("ground", "aerial"), "hvac": ("ground", "aerial"),
     "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
-    "drift": ("ground", "aerial"), "surface_label": ("ground",),
+    "drift": ("ground", "aerial"), "surface_label": ("ground",), "hvac_trip": ("ground", "aerial"),
 }
 """Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
 Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed
@@ -208,6 +209,7 @@ class _Plan:
     mass_over_omega_kg: float = 0.0
     surface_names: tuple[str, ...] = ()
     labels: bool = False   # a classifier's ``surface`` column, the seen map without surfaces
+    ambient_C: tuple[float, float] = (0.0, 35.0)   # range of the ambient temperature's walk
 
     def shape_route(self, style: str) -> None:
         """Ask for a route style; the first term that asks wins (recipes run in
@@ -352,17 +354,27 @@ def _payload(plan: _Plan, rng) -> None:
 def _hvac(plan: _Plan, rng) -> None:
     mode = ("heat", "cool", "both")[int(rng.integers(3))]
     share = rng.uniform(0.08, 0.30)
+    plan.power_effects.append(_hvac_adder("hvac", mode, share))
+
+
+def _hvac_adder(key: str, mode: str, share: float, least_K: float = 0.0) -> Callable:
+    """The power effect of heating and / or cooling (``mode``) drawing ``share`` of the mean
+    power together; truth under ``key``. Only a side the ambient reaches by more than
+    ``least_K`` on average works (a trip that never drops below the setpoint does not heat;
+    at least the side it reaches most)."""
 
     def add(p, frame, power, _rng):
         t_c = frame["ambient_C"].to_numpy(float)
         feats = {"hvac_heat_W_per_K": np.maximum(0.0, HVAC_SETPOINT_C - t_c),
                  "hvac_cool_W_per_K": np.maximum(0.0, t_c - HVAC_SETPOINT_C)}
-        chosen = [k for k in feats if mode == "both" or k.startswith(f"hvac_{mode}")]
+        chosen = [k for k in feats if (mode == "both" or k.startswith(f"hvac_{mode}"))
+                  and float(np.mean(feats[k])) > least_K]
+        chosen = chosen or [max(feats, key=lambda k: float(np.mean(feats[k])))]
         target_W = share * float(np.mean(power)) / len(chosen)
-        p.truth["hvac"] = {k: target_W / max(float(np.mean(feats[k])), 1e-3) for k in chosen}
-        return power + sum(p.truth["hvac"][k] * feats[k] for k in chosen)
+        p.truth[key] = {k: target_W / max(float(np.mean(feats[k])), 1e-3) for k in chosen}
+        return power + sum(p.truth[key][k] * feats[k] for k in chosen)
 
-    plan.power_effects.append(add)
+    return add
 
 
 def _surface_label(plan: _Plan, rng) -> None:
@@ -373,6 +385,23 @@ def _surface_label(plan: _Plan, rng) -> None:
     _surface_rolling(plan, rng)
     plan.truth["surface_label"] = plan.truth.pop("surface_rolling")
     plan.labels = True
+
+
+TRIP_AMBIENT_SPAN_K = (3.0, 10.0)
+"""Range of the span of a ``hvac_trip`` case's ambient temperature [K]: a trip of half an hour
+meets a few kelvin (the day warming, a valley), not the 0-35 C of a season."""
+
+
+def _hvac_trip(plan: _Plan, rng) -> None:
+    """``hvac`` on a trip-like ambient: a walk over 3-10 K somewhere in 0-35 C. Where it stays
+    on one side of the setpoint, the heating or cooling power is nearly constant over the
+    trip and the constant loads, refitted, take it: only its variation is evidence (the
+    detection limit that diagnosis states says how much of it a recording must carry)."""
+    span = rng.uniform(*TRIP_AMBIENT_SPAN_K)
+    low = rng.uniform(0.0, 35.0 - span)
+    plan.ambient_C = (float(low), float(low + span))
+    plan.power_effects.append(_hvac_adder("hvac_trip", "both", rng.uniform(0.08, 0.30),
+                                          least_K=0.5))
 
 
 def _battery_resistance(plan: _Plan, rng) -> None:
@@ -426,7 +455,7 @@ RECIPES: dict[str, Callable[[_Plan, np.random.Generator], None]] = {
     "inertia": _inertia, "regen": _regen, "turning": _turning, "wind": _wind,
     "payload": _payload, "hvac": _hvac, "battery_resistance": _battery_resistance,
     "battery_temperature": _battery_temperature, "drift": _drift,
-    "surface_label": _surface_label,
+    "surface_label": _surface_label, "hvac_trip": _hvac_trip,
 }
 
 
@@ -872,7 +901,7 @@ def _finish(plan: _Plan, ctx: Context, frame: pd.DataFrame, rng) -> pd.DataFrame
     """Conditions columns, concealed power and battery effects, soc, measurement effects."""
     t = frame["t_s"].to_numpy(float)
     dt = float(np.median(np.diff(t)))
-    frame["ambient_C"] = _smooth_walk(rng, t, 0.0, 35.0)
+    frame["ambient_C"] = _smooth_walk(rng, t, *plan.ambient_C)
     frame["battery_C"] = _battery_temperature_C(rng, t, plan.battery_cold)
     if plan.sensor_schedule:
         frame["sensor_rate_Hz"] = _sensor_schedule_Hz(rng, t)
