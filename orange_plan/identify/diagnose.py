@@ -135,6 +135,12 @@ MAX_LABEL_LAG_S = 5.0
 """Largest delay of a recording's ``surface`` labels behind the terrain under the wheels that
 is looked for [s]: a terrain classifier labels what it has seen over a window of a second or
 a few (vibration spectra, a camera's look-ahead averaged), and a logging stack adds tenths."""
+LABEL_WINDOWS_S = (0.0, 2.0, 4.0, 8.0)
+"""Majority windows tried on a recording's ``surface`` labels [s] (0: the labels as given): a
+classifier's slips (a shadow, a wet patch) are short bursts, and a wrong label is an error in
+the regressor that pulls each label's rolling coefficient towards the others' (2-8 % of the
+samples wrong moved them by up to 14 % of their difference); the majority over a window
+removes bursts shorter than half of it, and the window is chosen by the fit like the delay."""
 MIN_LABEL_SHARE = 0.05
 """A surface label gets its own rolling coefficient when it covers at least this share of
 the moving samples [-] (a label seen for a few seconds is a classifier's slip)."""
@@ -681,13 +687,29 @@ def surface_labels(d: Design) -> tuple[np.ndarray, list[str], str]:
     return d.cache["surface_labels"]
 
 
-def _label_columns(d: Design, lag_samples: int) -> np.ndarray:
-    """Rolling column on each own label's samples, the labels read ``lag_samples`` later (a
-    label at t describes the ground at t - lag; the last label held) [W per kg]."""
+def _label_columns(d: Design, lag_samples: int, window_samples: int = 0) -> np.ndarray:
+    """Rolling column on each own label's samples, the labels (their majority over
+    ``window_samples``, ``_majority``) read ``lag_samples`` later (a label at t describes the
+    ground at t - lag; the last label held) [W per kg]."""
     code, own, _ = surface_labels(d)
+    if window_samples > 1:
+        key = ("label_majority", window_samples)
+        if key not in d.cache:
+            d.cache[key] = _majority(code, len(own), window_samples)
+        code = d.cache[key]
     rolling = d.columns[:, d.base.names.index("rolling_kg")]
     later = code[np.minimum(np.arange(d.n) + lag_samples, d.n - 1)]
     return np.stack([rolling * (later == i) for i in range(len(own))], axis=1)
+
+
+def _majority(code: np.ndarray, n_codes: int, window: int) -> np.ndarray:
+    """The most frequent of codes -1 .. n_codes - 1 in a centred window of ``window``
+    samples (the ends held), per sample."""
+    from scipy.ndimage import uniform_filter1d
+
+    share = np.stack([uniform_filter1d((code == c).astype(float), window, mode="nearest")
+                      for c in range(-1, n_codes)])
+    return np.argmax(share, axis=0) - 1
 
 
 def _label_effect(d: Design, _resid, rows) -> Effect:
@@ -695,40 +717,46 @@ def _label_effect(d: Design, _resid, rows) -> Effect:
     the labels' delay (``label_lag``); the baseline's rolling coefficient stands for the
     reference label (``surface_labels``)."""
     rows = np.ones(d.n, bool) if rows is None else rows
-    lag_samples, lag_s, sd = label_lag(d, rows)
+    lag_samples, window, lag_s, sd = label_lag(d, rows)
     _, own, _ = surface_labels(d)
     base = d.base.coefficient("rolling_kg")
-    return Effect(_label_columns(d, lag_samples), tuple(f"delta_rolling_kg_{s}" for s in own),
+    return Effect(_label_columns(d, lag_samples, window),
+                  tuple(f"delta_rolling_kg_{s}" for s in own),
                   np.full(len(own), -base), np.full(len(own), np.inf),
                   {"label_lag_s": (lag_s, sd)})
 
 
-def label_lag(d: Design, rows: np.ndarray) -> tuple[int, float, float]:
-    """The labels' delay behind the ground under the wheels: (whole samples, seconds, its
-    standard error [s]). Every delay of whole samples up to ``MAX_LABEL_LAG_S`` is tried: the
+def label_lag(d: Design, rows: np.ndarray) -> tuple[int, int, float, float]:
+    """The labels' delay behind the ground under the wheels and their majority window: (delay
+    in whole samples, window in samples, delay [s], its standard error [s]). Every delay of whole samples up to ``MAX_LABEL_LAG_S`` is tried: the
     label columns and the baseline's columns are fitted on the training ``rows`` to the
     baseline's residual, and the delay that leaves the least is taken; its standard error is
     half the span of delays within one unit of chi-square (noise variance x autocorrelation
     time) of the best, as for a payload's change time. At a wrong delay each change of
-    surface charges the new surface's rolling to the old one's last metres. Fitted against
+    surface charges the new surface's rolling to the old one's last metres. Then, at that
+    delay, the majority window of ``LABEL_WINDOWS_S`` that leaves the least. Fitted against
     the baseline alone (not the candidates chosen before it), once per set of rows."""
     key = ("label_lag", hash(np.packbits(rows).tobytes()))
     if key in d.cache:
         return d.cache[key]
     resid = (d.target - d.columns @ d.base.theta)[rows]
+
+    def left(lag: int, window: int = 0) -> float:
+        x = np.hstack([d.columns, _label_columns(d, lag, window)])[rows]
+        coef = np.linalg.lstsq(x, resid, rcond=None)[0]
+        return float(np.sum((resid - x @ coef) ** 2))
+
     dt = float(np.median(np.diff(d.t_s)))
     lags = np.arange(round(MAX_LABEL_LAG_S / dt) + 1) if dt > 0 else np.zeros(1, int)
-    ss = np.empty(lags.size)
-    for j, k in enumerate(lags):
-        x = np.hstack([d.columns, _label_columns(d, int(k))])[rows]
-        coef = np.linalg.lstsq(x, resid, rcond=None)[0]
-        ss[j] = float(np.sum((resid - x @ coef) ** 2))
+    ss = np.array([left(int(k)) for k in lags])
     best = int(np.argmin(ss))
+    windows = sorted({max(1, round(w / dt)) if dt > 0 else 1 for w in LABEL_WINDOWS_S})
+    window = min(windows, key=lambda w: left(int(lags[best]), w))
     tau = autoregressive_inflation(d.target - d.columns @ d.base.theta, d.samples,
                                    INFLATION_BLOCK_S)
     near = ss <= ss[best] + float(np.mean(resid**2)) * tau
     sd = max(0.5 * float(np.ptp(lags[near])) * dt, dt)
-    d.cache[key] = (int(lags[best]), float(lags[best] * dt), sd)
+    d.cache[key] = (int(lags[best]), int(window), float(lags[best] * dt), sd)
     return d.cache[key]
 
 
@@ -1474,12 +1502,16 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     model, the chosen effects that stay candidates, the fit, term coefficient -> candidate
     id). With no term among ``chosen``: (d, chosen, fit, {})."""
     # hover stays a candidate: its column is zero on landed samples, its term is not
-    inside = [c for c in chosen if (c.id in TERMS and c.id != "hover") or c.id == "surface_rolling"]
+    inside = [c for c in chosen if (c.id in TERMS and c.id != "hover")
+              or c.id in ("surface_rolling", LABEL_CANDIDATE)]
     if not inside:
         return d, list(chosen), fit, {}
+    if any(c.id == LABEL_CANDIDATE for c in inside):
+        d = labelled_design(d)
     others = [c for c in chosen if c not in inside]
     values = dict(zip(fit.names, fit.theta))
-    terms = [make_term(c.id, d.world.map.surface_names) for c in inside]
+    terms = [make_term("surface_rolling" if c.id == LABEL_CANDIDATE else c.id,
+                       d.world.map.surface_names) for c in inside]
     owner = {name: c.id for c, t in zip(inside, terms) for name in t.coefficients}
     start = {n: _start_value(values, owner[n], n) for n in owner}
     model = d.base.with_terms([*d.base.terms, *terms], start)
@@ -1488,7 +1520,7 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d)}
     # a surface never driven on has an all-zero column: it takes the default coefficient
     unseen = [i for i, n in enumerate(model.names)
-              if owner.get(n) == "surface_rolling" and n not in seen]
+              if owner.get(n) in ("surface_rolling", LABEL_CANDIDATE) and n not in seen]
     extra = len(model.names) - len(d.base.names)
 
     def design_at(model) -> Design:
@@ -1508,12 +1540,35 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     return design_at(model), others, polished, owner
 
 
+def labelled_design(d: Design) -> Design:
+    """``d`` with the recording's labels as its map surfaces: each sample's surface code is its
+    label's (delayed and taken over the majority window that ``label_lag`` chose on the whole
+    run; the reference label -1, the default ground), and the map carries one surface per own
+    label (no polygon: the codes come from the labels), so that per-label rolling joins the
+    model as the ``surface_rolling`` term and is refitted inside it (``_absorb``): a label
+    that rolls harder draws power on gentle downhills the baseline's clip called coasting."""
+    from shapely.geometry import Polygon
+
+    from orange_plan.world.geomap import Surface
+
+    lag, window, _, _ = label_lag(d, np.ones(d.n, bool))
+    code, own, _ = surface_labels(d)
+    if window > 1:
+        code = _majority(code, len(own), window)
+    code = code[np.minimum(np.arange(d.n) + lag, d.n - 1)]
+    world = d.world
+    surfaces = tuple(Surface(name, world.default_crr, Polygon()) for name in own)
+    state = d.state.with_(surface_code=code)
+    return replace(d, samples=replace(d.samples, state=state),
+                   world=replace(world, map=replace(world.map, surfaces=surfaces)), cache={})
+
+
 def _start_value(values: dict, owner: str, name: str) -> float:
     """A found term's coefficient from ``fit_design``'s values; a surface's rolling is the
     default coefficient plus the surface's fitted change."""
-    if owner == "surface_rolling":
+    if owner in ("surface_rolling", LABEL_CANDIDATE):
         surface = name.removeprefix(SURFACE_PREFIX)
-        return values["rolling_kg"] + values.get(f"surface_rolling.delta_{name}", 0.0) \
+        return values["rolling_kg"] + values.get(f"{owner}.delta_{name}", 0.0) \
             if surface else values["rolling_kg"]
     return values[f"{owner}.{name}"]
 
@@ -1611,28 +1666,19 @@ def _physical_params(d: Design, fit: Fit, cand: Candidate, params: dict, stderr:
 
 
 def _label_params(d: Design, fit: Fit, params: dict, stderr: dict):
-    """Per-label rolling as ``rolling_kg_<label>`` [kg]: the reference label's is the fitted
-    ``rolling_kg``, every other's that plus its fitted change (its standard error from the
-    joint fit's covariance of the two); the labels' delay ``label_lag_s`` [s] as fitted."""
-    base = fit.names.index("rolling_kg")
-    cov = _fit_covariance(fit)
+    """Per-label rolling as ``rolling_kg_<label>`` [kg] from the polished fit (``_absorb``:
+    the labels as the model's surfaces), the reference label's being ``rolling_kg``; the
+    labels' delay ``label_lag_s`` [s] as ``label_lag`` found it on the whole run."""
     _, own, reference = surface_labels(d)
+    base = fit.names.index("rolling_kg")
     out = {f"rolling_kg_{reference}": float(fit.theta[base])}
     sds = {f"rolling_kg_{reference}": float(fit.sd[base])}
     for label in own:
-        i = fit.names.index(f"{LABEL_CANDIDATE}.delta_rolling_kg_{label}")
-        out[f"rolling_kg_{label}"] = float(fit.theta[base] + fit.theta[i])
-        sds[f"rolling_kg_{label}"] = float(np.sqrt(max(
-            cov[base, base] + cov[i, i] + 2 * cov[base, i], 0.0)))
-    out["label_lag_s"], sds["label_lag_s"] = params["label_lag_s"], stderr["label_lag_s"]
+        name = f"rolling_kg_{label}"
+        if name in params:
+            out[name], sds[name] = params[name], stderr[name]
+    _, _, out["label_lag_s"], sds["label_lag_s"] = label_lag(d, np.ones(d.n, bool))
     return out, sds
-
-
-def _fit_covariance(fit: Fit) -> np.ndarray:
-    """The coefficients' covariance as ``fit_design`` inflates it, without its prior (a
-    finding's report) [unit^2]: ``(X'X)^+ s^2 tau``."""
-    s2 = fit.rmse_W**2 * fit.tau
-    return np.linalg.pinv(fit.x.T @ fit.x) * s2
 
 
 def payload_mass_kg(d: Design, fit: Fit) -> tuple[float, float]:
