@@ -1506,7 +1506,8 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
               or c.id in ("surface_rolling", LABEL_CANDIDATE)]
     if not inside:
         return d, list(chosen), fit, {}
-    if any(c.id == LABEL_CANDIDATE for c in inside):
+    labelled = any(c.id == LABEL_CANDIDATE for c in inside)
+    if labelled:
         d = labelled_design(d)
     others = [c for c in chosen if c not in inside]
     values = dict(zip(fit.names, fit.theta))
@@ -1517,7 +1518,9 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     model = d.base.with_terms([*d.base.terms, *terms], start)
     model = model.with_theta({n: values[n] for n in d.base.names})
     lower, upper = _bounds(model.names)
-    seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d)}
+    # a label has its own coefficient because it covers MIN_LABEL_SHARE of the raw labels; its
+    # majority may cover a little less, and it is still fitted
+    seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d, 1e-3 if labelled else 0.05)}
     # a surface never driven on has an all-zero column: it takes the default coefficient
     unseen = [i for i, n in enumerate(model.names)
               if owner.get(n) in ("surface_rolling", LABEL_CANDIDATE) and n not in seen]
