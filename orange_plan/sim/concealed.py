@@ -38,11 +38,13 @@ How a case is made
 
 Every case has the same columns: ``t_s, x_m, y_m, z_m, v_mps, yaw_rate_radps, accel_mps2,
 power_W, soc, sensor_rate_Hz, ambient_C, battery_C`` (SPEC §3): ``ambient_C`` is a smooth
-non-monotone walk over 0-35 C and ``battery_C`` warms towards 25-30 C from a start at
--10..20 C (-10..5 C in ``battery_temperature`` cases), so neither column's presence or range
-gives a case away; ``payload_kg``, ``surface`` and the wind columns are never written. (Only
-``hover`` cases start and end landed: without those periods a hover power and an ancillary
-draw are the same constant.)
+non-monotone walk over 0-35 C (3-10 K of it in ``hvac_trip`` cases) and ``battery_C`` warms
+towards 25-30 C from a start at -10..20 C (-10..5 C in ``battery_temperature`` cases), so
+neither column's presence or range gives a case away; ``payload_kg`` and the wind columns are
+never written, and ``surface`` only by the labelled cases (``surface_label`` and the null
+case ``null-ground-labels``: a terrain classifier's labels, late and sometimes wrong,
+``_with_labels``), whose scenario's map has no surfaces. (Only ``hover`` cases start and end
+landed: without those periods a hover power and an ancillary draw are the same constant.)
 
 Effect sizes: the share of the run's energy the concealed term carries (30-min runs at 10 Hz,
 seeds 0-4, README "Concealed-effect cases"; the surface and battery shares were measured
