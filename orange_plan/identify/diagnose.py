@@ -728,9 +728,10 @@ def _label_effect(d: Design, _resid, rows) -> Effect:
 
 def label_lag(d: Design, rows: np.ndarray) -> tuple[int, int, float, float]:
     """The labels' delay behind the ground under the wheels and their majority window: (delay
-    in whole samples, window in samples, delay [s], its standard error [s]). Every delay of whole samples up to ``MAX_LABEL_LAG_S`` is tried: the
-    label columns and the baseline's columns are fitted on the training ``rows`` to the
-    baseline's residual, and the delay that leaves the least is taken; its standard error is
+    in whole samples, window in samples, delay [s], its standard error [s]). Every delay of
+    whole samples up to ``MAX_LABEL_LAG_S`` is tried: the label columns and the baseline's
+    columns are fitted on the training ``rows`` to the baseline's residual, and the delay
+    that leaves the least is taken; its standard error is
     half the span of delays within one unit of chi-square (noise variance x autocorrelation
     time) of the best, as for a payload's change time. At a wrong delay each change of
     surface charges the new surface's rolling to the old one's last metres. Then, at that
@@ -768,7 +769,8 @@ def _needs_labels(d: Design):
     if "rolling_kg" not in d.base.names:
         return "no rolling term to differ by surface"
     if not surface_labels(d)[1]:
-        return f"the surface labels name one surface on {100 * (1 - MIN_LABEL_SHARE):.0f} % of the drive"
+        return (f"the surface labels name one surface on {100 * (1 - MIN_LABEL_SHARE):.0f} % "
+                "of the drive")
     return None
 
 
