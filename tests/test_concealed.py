@@ -52,7 +52,7 @@ EFFECT_PCT = {
     "surface_rolling": (3, 40), "aero_drag": (5, 45), "grade": (3, 60), "inertia": (0, 5),
     "regen": (0, 12), "turning": (3, 40), "wind": (0, 30), "payload": (0.5, 30),
     "hvac": (6, 30), "battery_resistance": (2.5, 11), "battery_temperature": (3, 14),
-    "drift": (4, 22),
+    "drift": (4, 22), "surface_label": (3, 60), "hvac_trip": (6, 30),
 }
 """Share of the completed model's energy that the concealed term carries, per single-term
 case at DURATION_S [%] (|E_completed - E_scenario| / E_completed). Inertia, regen and wind
@@ -71,6 +71,10 @@ def completed_powers(case):
     state = recording_state(case.recording, ctx.world, ctx.conditions.sensor_rate_Hz,
                             grade_window_m=GRADE_WINDOW_M)
     seen_W = np.asarray(ctx.model.power_W(state), float)
+    if "surface_label" in truth:  # the truth rolls per surface of the map as drawn
+        ctx, truth = surfaced_truth(case)
+        state = recording_state(case.recording, ctx.world, ctx.conditions.sensor_rate_Hz,
+                                grade_window_m=GRADE_WINDOW_M)
     in_model = [t for t in MODEL_TERMS if t in truth]
     ids = [*ctx.model.term_ids, *(t for t in in_model if not ctx.model.has(t))]
     model = model_with_terms(ctx, ids).with_theta(
@@ -89,9 +93,9 @@ def completed_powers(case):
         moving = np.flatnonzero(frame["v_mps"].to_numpy() > 0)
         airborne = (np.arange(len(t)) >= moving[0]) & (np.arange(len(t)) <= moving[-1])
         power = power + truth["hover"]["hover_W"] * airborne
-    if "hvac" in truth:
+    if "hvac" in truth or "hvac_trip" in truth:
         ambient = frame["ambient_C"].to_numpy(float)
-        h = truth["hvac"]
+        h = truth.get("hvac") or truth["hvac_trip"]
         power = power + (h.get("hvac_heat_W_per_K", 0.0) * np.maximum(0, 20 - ambient)
                          + h.get("hvac_cool_W_per_K", 0.0) * np.maximum(0, ambient - 20))
     if "battery_resistance" in truth:
@@ -101,6 +105,21 @@ def completed_powers(case):
         power = power + truth["battery_temperature"]["battery_cold_loss_per_W_K"] * cold * power**2
     lagged = np.interp(t - case.measurement["lag_s"], t, power)  # the power meter's lag
     return np.interp(t - case.measurement["lag_s"], t, seen_W), lagged
+
+
+def surfaced_truth(case):
+    """A ``surface_label`` case's truth as a ``surface_rolling`` term on the example map with
+    its surfaces: (that context, truth). Each label's coefficient was stated on the handed
+    over map's column (the default rolling coefficient everywhere)."""
+    surfaced = load_context(examples_dir("scenarios", "") / SCENARIOS[case.kind])
+    surfaced = replace(surfaced, model=case.ctx.model)
+    world = surfaced.world
+    crr = {s.name: s.crr for s in world.map.surfaces}
+    labels = case.truth["surface_label"]
+    coeffs = {f"rolling_kg_{s}": labels.get(f"rolling_kg_{s}", 0.0) * world.default_crr / crr[s]
+              for s in world.map.surface_names}
+    coeffs["rolling_kg"] = labels[f"rolling_kg_{world.default_surface_name}"]
+    return surfaced, {"surface_rolling": coeffs}
 
 
 def energies(case):
@@ -128,7 +147,8 @@ def suite():
 
 def test_suite_covers_every_term_pair_and_null(suite):
     assert tuple(RECIPES) == CONCEALABLE
-    expected = {*CONCEALABLE, *("+".join(p) for p in PAIRS), "null-ground", "null-aerial"}
+    expected = {*CONCEALABLE, *("+".join(p) for p in PAIRS), "null-ground", "null-aerial",
+                "null-ground-labels"}
     assert set(suite) == expected
     for name, case in suite.items():
         assert case.name == f"{name}/seed7"
@@ -176,8 +196,10 @@ def test_no_column_labels_the_effect(suite):
     columns = {"t_s", "x_m", "y_m", "z_m", "v_mps", "yaw_rate_radps", "accel_mps2", "power_W",
                "soc", "sensor_rate_Hz", "ambient_C", "battery_C"}
     for name, case in suite.items():
-        assert set(case.frame.columns) == columns, name
-        assert not any(c.startswith(("wind", "payload", "surface", "hvac"))
+        labelled = name in ("surface_label", "null-ground-labels")  # a classifier's labels
+        assert set(case.frame.columns) == columns | ({"surface"} if labelled else set()), name
+        assert not any(c.startswith(("wind", "payload", "hvac"))
+                       or (c.startswith("surface") and not labelled)
                        for c in case.recording.frame.columns), name
 
 
@@ -210,7 +232,10 @@ def test_surface_route_drives_on_and_off_its_surface(suite, name):
 def test_conditions_columns_vary_and_are_not_monotone(suite):
     for name, case in suite.items():
         ambient = case.frame["ambient_C"].to_numpy()
-        assert ambient.min() >= 0 and ambient.max() <= 35 and np.ptp(ambient) > 20, name
+        least_span = 2.9 if name == "hvac_trip" else 20  # a trip's few kelvin, a season's 35
+        assert ambient.min() >= 0 and ambient.max() <= 35 and np.ptp(ambient) > least_span, name
+        if name == "hvac_trip":
+            assert np.ptp(ambient) <= 10.1, name
         steps = np.sign(np.diff(ambient))
         assert (steps > 0).any() and (steps < 0).any(), name
     rates = suite["sensor_rate"].frame["sensor_rate_Hz"]

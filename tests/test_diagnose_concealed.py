@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import pytest
 
-from orange_plan.bench.diagnose import oracle, with_stated_limits
+from orange_plan.bench.diagnose import concealed_id, oracle, with_stated_limits
 from orange_plan.identify.diagnose import AS_GOOD_HELD_OUT, MASK_EACH_OTHER, MIN_T, diagnose
-from orange_plan.physics.terms import spec_id
 from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
 
 SEED = 0
@@ -67,7 +66,7 @@ def results():
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_marks(n)) for n in _case_names()])
 def test_diagnosis_names_exactly_the_concealed_terms(results, name):
     case, result = results(name)
-    concealed = sorted(spec_id(t) for t in case.truth)
+    concealed = sorted(concealed_id(t) for t in case.truth)
     named = sorted(f.term for f in result.findings)
     assert named == concealed, (name, [f.to_dict() for f in result.findings])
     if concealed:
@@ -81,7 +80,7 @@ def test_diagnosis_names_exactly_the_concealed_terms(results, name):
     for n in CONCEALABLE if n not in NOT_FOUND])
 def test_found_parameters_are_within_their_uncertainty(results, name):
     case, result = results(name)
-    (finding,) = [f for f in result.findings if f.term == spec_id(name)]
+    (finding,) = [f for f in result.findings if f.term == concealed_id(name)]
     checked = 0
     for param, true in case.truth[name].items():
         if param not in finding.params:

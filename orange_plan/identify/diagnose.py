@@ -124,10 +124,10 @@ sidewalk robot's drag at 1 m/s is a fraction of a watt, and a wind fitted to it 
 heading-dependent fluke (a slope met in one direction) scaled up to gale force."""
 MAX_WIND_MPS = 30.0
 """Largest wind (or water current) a finding may claim [m/s]."""
-SCANNED = {"payload"}
-"""Candidates whose change time is the best of a scan over the whole run: the largest of the
-scan's t statistics is itself large, so their t must exceed MIN_T by the scan's typical
-maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
+SCANNED = {"payload", "surface_label"}
+"""Candidates whose change time (a payload's) or delay (a surface label's, ``LABEL_LAGS_S``) is
+the best of a scan: the largest of the scan's t statistics is itself large, so their t must
+exceed MIN_T by the scan's typical maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
 that maximum grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff)
 of independent tests: on the null cases the scan's largest t was 1.7-3.2."""
 AS_GOOD_HELD_OUT = "as good held out"
@@ -136,6 +136,19 @@ MASK_EACH_OTHER = "each masks the other"
 RIVALS = 4
 """Single candidates (the best by held-out gain) checked as alternatives to a found term
 [-]."""
+MAX_LABEL_LAG_S = 5.0
+"""Largest delay of a recording's ``surface`` labels behind the terrain under the wheels that
+is looked for [s]: a terrain classifier labels what it has seen over a window of a second or
+a few (vibration spectra, a camera's look-ahead averaged), and a logging stack adds tenths."""
+LABEL_WINDOWS_S = (0.0, 2.0, 4.0, 8.0)
+"""Majority windows tried on a recording's ``surface`` labels [s] (0: the labels as given): a
+classifier's slips (a shadow, a wet patch) are short bursts, and a wrong label is an error in
+the regressor that pulls each label's rolling coefficient towards the others' (2-8 % of the
+samples wrong moved them by up to 14 % of their difference); the majority over a window
+removes bursts shorter than half of it, and the window is chosen by the fit like the delay."""
+MIN_LABEL_SHARE = 0.05
+"""A surface label gets its own rolling coefficient when it covers at least this share of
+the moving samples [-] (a label seen for a few seconds is a classifier's slip)."""
 N_BLOCKS = 20
 """Equal-time blocks of the recording; fold k holds out blocks k, k + N_FOLDS, ... [-]."""
 N_FOLDS = 5
@@ -145,6 +158,9 @@ PRIOR_SCALE = 10.0
 """The scenario's a priori standard errors are widened by this factor for the baseline
 refit, as in calibration: they steer only what the recording cannot separate [-]."""
 
+LABEL_CANDIDATE = "surface_label"
+"""Per-surface rolling read from the recording's ``surface`` labels, where the map has no
+surfaces (reported as ``surface_rolling``, variant ``surface_label``)."""
 TERM_CANDIDATES = ("ancillary", "sensor_rate", "hover", "rolling", "surface_rolling",
                    "aero_drag", "grade", "inertia", "regen", "turning", "turning_torque",
                    "hvac", "hvac_ambient", "heater", "battery_resistance",
@@ -648,6 +664,121 @@ def _surfaces_seen(d: Design, share: float = 0.05) -> list[str]:
             if np.count_nonzero((code == i) & moving) >= share * max(1, moving.sum())]
 
 
+# --- per-surface rolling from the recording's surface labels -------------------------------
+
+
+def surface_labels(d: Design) -> tuple[np.ndarray, list[str], str]:
+    """The recording's ``surface`` labels as codes: (code per sample, -1 for a label with no
+    coefficient of its own; the labels that get one; the reference label).
+
+    The reference is the map's default surface when the labels use its name, else the label
+    most driven on: the baseline's one rolling coefficient stands for it, and every other
+    label seen on at least ``MIN_LABEL_SHARE`` of the moving samples gets its change from it
+    (all of them would repeat the baseline's column)."""
+    if "surface_labels" not in d.cache:
+        raw = d.frame["surface"].astype(str).str.strip().str.lower().to_numpy()
+        moving = np.asarray(d.state.speed_mps) > 0
+        names, counts = np.unique(raw[moving], return_counts=True)
+        known = [(c, n) for n, c in zip(names, counts)
+                 if n not in ("", "nan", "none") and c >= MIN_LABEL_SHARE * max(1, moving.sum())]
+        default = str(d.world.default_surface_name).lower()
+        ranked = [n for _, n in sorted(known, reverse=True)]
+        reference = default if default in ranked else (ranked[0] if ranked else "")
+        own = sorted(n for n in ranked if n != reference)
+        code = np.full(d.n, -1)
+        for i, name in enumerate(own):
+            code[raw == name] = i
+        d.cache["surface_labels"] = (code, own, reference)
+    return d.cache["surface_labels"]
+
+
+def _label_columns(d: Design, lag_samples: int, window_samples: int = 0) -> np.ndarray:
+    """Rolling column on each own label's samples, the labels (their majority over
+    ``window_samples``, ``_majority``) read ``lag_samples`` later (a label at t describes the
+    ground at t - lag; the last label held) [W per kg]."""
+    code, own, _ = surface_labels(d)
+    if window_samples > 1:
+        key = ("label_majority", window_samples)
+        if key not in d.cache:
+            d.cache[key] = _majority(code, len(own), window_samples)
+        code = d.cache[key]
+    rolling = d.columns[:, d.base.names.index("rolling_kg")]
+    later = code[np.minimum(np.arange(d.n) + lag_samples, d.n - 1)]
+    return np.stack([rolling * (later == i) for i in range(len(own))], axis=1)
+
+
+def _majority(code: np.ndarray, n_codes: int, window: int) -> np.ndarray:
+    """The most frequent of codes -1 .. n_codes - 1 in a centred window of ``window``
+    samples (the ends held), per sample."""
+    from scipy.ndimage import uniform_filter1d
+
+    share = np.stack([uniform_filter1d((code == c).astype(float), window, mode="nearest")
+                      for c in range(-1, n_codes)])
+    return np.argmax(share, axis=0) - 1
+
+
+def _label_effect(d: Design, _resid, rows) -> Effect:
+    """Per-surface change of the rolling coefficient read from the recording's labels, at
+    the labels' delay (``label_lag``); the baseline's rolling coefficient stands for the
+    reference label (``surface_labels``)."""
+    rows = np.ones(d.n, bool) if rows is None else rows
+    lag_samples, window, lag_s, sd = label_lag(d, rows)
+    _, own, _ = surface_labels(d)
+    base = d.base.coefficient("rolling_kg")
+    return Effect(_label_columns(d, lag_samples, window),
+                  tuple(f"delta_rolling_kg_{s}" for s in own),
+                  np.full(len(own), -base), np.full(len(own), np.inf),
+                  {"label_lag_s": (lag_s, sd)})
+
+
+def label_lag(d: Design, rows: np.ndarray) -> tuple[int, int, float, float]:
+    """The labels' delay behind the ground under the wheels and their majority window: (delay
+    in whole samples, window in samples, delay [s], its standard error [s]). Every delay of
+    whole samples up to ``MAX_LABEL_LAG_S`` is tried: the label columns and the baseline's
+    columns are fitted on the training ``rows`` to the baseline's residual, and the delay
+    that leaves the least is taken; its standard error is
+    half the span of delays within one unit of chi-square (noise variance x autocorrelation
+    time) of the best, as for a payload's change time. At a wrong delay each change of
+    surface charges the new surface's rolling to the old one's last metres. Then, at that
+    delay, the majority window of ``LABEL_WINDOWS_S`` that leaves the least. Fitted against
+    the baseline alone (not the candidates chosen before it), once per set of rows."""
+    key = ("label_lag", hash(np.packbits(rows).tobytes()))
+    if key in d.cache:
+        return d.cache[key]
+    resid = (d.target - d.columns @ d.base.theta)[rows]
+
+    def left(lag: int, window: int = 0) -> float:
+        x = np.hstack([d.columns, _label_columns(d, lag, window)])[rows]
+        coef = np.linalg.lstsq(x, resid, rcond=None)[0]
+        return float(np.sum((resid - x @ coef) ** 2))
+
+    dt = float(np.median(np.diff(d.t_s)))
+    lags = np.arange(round(MAX_LABEL_LAG_S / dt) + 1) if dt > 0 else np.zeros(1, int)
+    ss = np.array([left(int(k)) for k in lags])
+    best = int(np.argmin(ss))
+    windows = sorted({max(1, round(w / dt)) if dt > 0 else 1 for w in LABEL_WINDOWS_S})
+    window = min(windows, key=lambda w: left(int(lags[best]), w))
+    tau = autoregressive_inflation(d.target - d.columns @ d.base.theta, d.samples,
+                                   INFLATION_BLOCK_S)
+    near = ss <= ss[best] + float(np.mean(resid**2)) * tau
+    sd = max(0.5 * float(np.ptp(lags[near])) * dt, dt)
+    d.cache[key] = (int(lags[best]), int(window), float(lags[best] * dt), sd)
+    return d.cache[key]
+
+
+def _needs_labels(d: Design):
+    if "surface" not in d.columns_of:
+        return "the recording has no surface column"
+    if d.world.map.surfaces:
+        return "the map has surfaces (surface_rolling reads them)"
+    if "rolling_kg" not in d.base.names:
+        return "no rolling term to differ by surface"
+    if not surface_labels(d)[1]:
+        return (f"the surface labels name one surface on {100 * (1 - MIN_LABEL_SHARE):.0f} % "
+                "of the drive")
+    return None
+
+
 def _mass_per_kg_W(d: Design) -> np.ndarray:
     """Battery power per kg of extra moving mass at the baseline coefficients [W/kg]: the
     derivative of ``model_builder.mass_scales`` (the simulator's payload) at no extra mass,
@@ -922,6 +1053,7 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
     "battery_temperature": (_column("battery_C"), "battery temperature [C]"),
     "drift": (lambda d: d.t_s, "time since start [s]"),
     "payload": (lambda d: d.t_s, "time since start [s]"),
+    LABEL_CANDIDATE: (lambda d: surface_labels(d)[0], "surface label (-1: the reference)"),
     "wind": (lambda d: np.degrees(np.arctan2(d.state.dir_x, d.state.dir_y)) % 360.0,
              "heading [deg from north]"),
 }
@@ -934,6 +1066,8 @@ def candidates() -> list[Candidate]:
                      _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]
     out.append(Candidate("payload", _needs_mass, _payload_effect, _feature(*_FEATURES["payload"])))
     out.append(Candidate("wind", _needs_wind, _wind_effect, _feature(*_FEATURES["wind"])))
+    out.append(Candidate(LABEL_CANDIDATE, _needs_labels, _label_effect,
+                         _feature(*_FEATURES[LABEL_CANDIDATE])))
     return out
 
 
@@ -1375,21 +1509,28 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     model, the chosen effects that stay candidates, the fit, term coefficient -> candidate
     id). With no term among ``chosen``: (d, chosen, fit, {})."""
     # hover stays a candidate: its column is zero on landed samples, its term is not
-    inside = [c for c in chosen if (c.id in TERMS and c.id != "hover") or c.id == "surface_rolling"]
+    inside = [c for c in chosen if (c.id in TERMS and c.id != "hover")
+              or c.id in ("surface_rolling", LABEL_CANDIDATE)]
     if not inside:
         return d, list(chosen), fit, {}
+    labelled = any(c.id == LABEL_CANDIDATE for c in inside)
+    if labelled:
+        d = labelled_design(d)
     others = [c for c in chosen if c not in inside]
     values = dict(zip(fit.names, fit.theta))
-    terms = [make_term(c.id, d.world.map.surface_names) for c in inside]
+    terms = [make_term("surface_rolling" if c.id == LABEL_CANDIDATE else c.id,
+                       d.world.map.surface_names) for c in inside]
     owner = {name: c.id for c, t in zip(inside, terms) for name in t.coefficients}
     start = {n: _start_value(values, owner[n], n) for n in owner}
     model = d.base.with_terms([*d.base.terms, *terms], start)
     model = model.with_theta({n: values[n] for n in d.base.names})
     lower, upper = _bounds(model.names)
-    seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d)}
+    # a label has its own coefficient because it covers MIN_LABEL_SHARE of the raw labels; its
+    # majority may cover a little less, and it is still fitted
+    seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d, 1e-3 if labelled else 0.05)}
     # a surface never driven on has an all-zero column: it takes the default coefficient
     unseen = [i for i, n in enumerate(model.names)
-              if owner.get(n) == "surface_rolling" and n not in seen]
+              if owner.get(n) in ("surface_rolling", LABEL_CANDIDATE) and n not in seen]
     extra = len(model.names) - len(d.base.names)
 
     def design_at(model) -> Design:
@@ -1409,12 +1550,35 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     return design_at(model), others, polished, owner
 
 
+def labelled_design(d: Design) -> Design:
+    """``d`` with the recording's labels as its map surfaces: each sample's surface code is its
+    label's (delayed and taken over the majority window that ``label_lag`` chose on the whole
+    run; the reference label -1, the default ground), and the map carries one surface per own
+    label (no polygon: the codes come from the labels), so that per-label rolling joins the
+    model as the ``surface_rolling`` term and is refitted inside it (``_absorb``): a label
+    that rolls harder draws power on gentle downhills the baseline's clip called coasting."""
+    from shapely.geometry import Polygon
+
+    from orange_plan.world.geomap import Surface
+
+    lag, window, _, _ = label_lag(d, np.ones(d.n, bool))
+    code, own, _ = surface_labels(d)
+    if window > 1:
+        code = _majority(code, len(own), window)
+    code = code[np.minimum(np.arange(d.n) + lag, d.n - 1)]
+    world = d.world
+    surfaces = tuple(Surface(name, world.default_crr, Polygon()) for name in own)
+    state = d.state.with_(surface_code=code)
+    return replace(d, samples=replace(d.samples, state=state),
+                   world=replace(world, map=replace(world.map, surfaces=surfaces)), cache={})
+
+
 def _start_value(values: dict, owner: str, name: str) -> float:
     """A found term's coefficient from ``fit_design``'s values; a surface's rolling is the
     default coefficient plus the surface's fitted change."""
-    if owner == "surface_rolling":
+    if owner in ("surface_rolling", LABEL_CANDIDATE):
         surface = name.removeprefix(SURFACE_PREFIX)
-        return values["rolling_kg"] + values.get(f"surface_rolling.delta_{name}", 0.0) \
+        return values["rolling_kg"] + values.get(f"{owner}.delta_{name}", 0.0) \
             if surface else values["rolling_kg"]
     return values[f"{owner}.{name}"]
 
@@ -1429,6 +1593,9 @@ def _finding(d: Design, cand: Candidate, chosen, improved: Fit, baseline: Fit,
     explains = float(np.clip(100.0 * ss_gain / ss_base, 0.0, 100.0)) if ss_base > 0 else 0.0
     values, label = cand.feature(d)
     evidence = _evidence(d, cand, values, label, baseline, without, improved)
+    if cand.id == LABEL_CANDIDATE:
+        evidence += ("; the map has no surfaces for these coefficients: the model keeps one "
+                     "rolling coefficient (draw the surfaces on the map to plan with them)")
     if alternatives:
         evidence += "; " + ", ".join(_alternative_sentence(a) for a in alternatives) + (
             ": this recording cannot tell them apart")
@@ -1498,12 +1665,30 @@ def _physical_params(d: Design, fit: Fit, cand: Candidate, params: dict, stderr:
         seen = {f"{SURFACE_PREFIX}{s}" for s in _surfaces_seen(d)}
         params = {k: v for k, v in params.items() if k in seen}
         stderr = {k: v for k, v in stderr.items() if k in seen}
+    if cand.id == LABEL_CANDIDATE:
+        params, stderr = _label_params(d, fit, params, stderr)
     if cand.id == "wind":
         params.pop("wind_share", None)
         stderr.pop("wind_share", None)
         params.pop("wind_change_mps", None)
         stderr.pop("wind_change_mps", None)
     return params, stderr
+
+
+def _label_params(d: Design, fit: Fit, params: dict, stderr: dict):
+    """Per-label rolling as ``rolling_kg_<label>`` [kg] from the polished fit (``_absorb``:
+    the labels as the model's surfaces), the reference label's being ``rolling_kg``; the
+    labels' delay ``label_lag_s`` [s] as ``label_lag`` found it on the whole run."""
+    _, own, reference = surface_labels(d)
+    base = fit.names.index("rolling_kg")
+    out = {f"rolling_kg_{reference}": float(fit.theta[base])}
+    sds = {f"rolling_kg_{reference}": float(fit.sd[base])}
+    for label in own:
+        name = f"rolling_kg_{label}"
+        if name in params:
+            out[name], sds[name] = params[name], stderr[name]
+    _, _, out["label_lag_s"], sds["label_lag_s"] = label_lag(d, np.ones(d.n, bool))
+    return out, sds
 
 
 def payload_mass_kg(d: Design, fit: Fit) -> tuple[float, float]:
@@ -1603,6 +1788,10 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
         if cand.id == "payload":
             changes["payload_kg"] = next(f.params["payload_kg"] for f in findings
                                          if f.term == "payload")
+        elif cand.id == LABEL_CANDIDATE:
+            # the map has no surfaces to hang the coefficients on: the finding reports them
+            # and the model keeps its one rolling coefficient
+            continue
         elif cand.id == "wind":
             speed, from_deg = wind_speed_and_from(own["wind_x_mps"], own["wind_y_mps"])
             # the drag under that wind is the one fitted with it (the baseline's coefficient

@@ -320,7 +320,7 @@ TERMS: dict[str, Term] = {
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""
 
 VARIANT_OF = {"rolling_torque": "rolling", "turning_torque": "turning", "heater": "hvac",
-              "hvac_ambient": "hvac"}
+              "hvac_ambient": "hvac", "surface_label": "surface_rolling"}
 """Terms of our own that are variants of a vocabulary id (reports give both)."""
 
 

@@ -38,11 +38,13 @@ How a case is made
 
 Every case has the same columns: ``t_s, x_m, y_m, z_m, v_mps, yaw_rate_radps, accel_mps2,
 power_W, soc, sensor_rate_Hz, ambient_C, battery_C`` (SPEC §3): ``ambient_C`` is a smooth
-non-monotone walk over 0-35 C and ``battery_C`` warms towards 25-30 C from a start at
--10..20 C (-10..5 C in ``battery_temperature`` cases), so neither column's presence or range
-gives a case away; ``payload_kg``, ``surface`` and the wind columns are never written. (Only
-``hover`` cases start and end landed: without those periods a hover power and an ancillary
-draw are the same constant.)
+non-monotone walk over 0-35 C (3-10 K of it in ``hvac_trip`` cases) and ``battery_C`` warms
+towards 25-30 C from a start at -10..20 C (-10..5 C in ``battery_temperature`` cases), so
+neither column's presence or range gives a case away; ``payload_kg`` and the wind columns are
+never written, and ``surface`` only by the labelled cases (``surface_label`` and the null
+case ``null-ground-labels``: a terrain classifier's labels, late and sometimes wrong,
+``_with_labels``), whose scenario's map has no surfaces. (Only ``hover`` cases start and end
+landed: without those periods a hover power and an ancillary draw are the same constant.)
 
 Effect sizes: the share of the run's energy the concealed term carries (30-min runs at 10 Hz,
 seeds 0-4, README "Concealed-effect cases"; the surface and battery shares were measured
@@ -84,9 +86,12 @@ from orange_plan.telemetry.recording import Recording, recording_from_frame, wri
 CONCEALABLE: tuple[str, ...] = (
     "ancillary", "sensor_rate", "hover", "rolling", "surface_rolling", "aero_drag", "grade",
     "inertia", "regen", "turning", "wind", "payload", "hvac", "battery_resistance",
-    "battery_temperature", "drift",
+    "battery_temperature", "drift", "surface_label", "hvac_trip",
 )
-"""Vocabulary ids (SPEC §6) a case can conceal."""
+"""Vocabulary ids (SPEC §6) a case can conceal, and two variants: ``surface_label``, per-surface
+rolling on a map without surfaces, the recording carrying a terrain classifier's delayed
+``surface`` labels (reported as ``surface_rolling``); ``hvac_trip``, the ``hvac`` effect on a
+trip whose ambient temperature spans only 3-10 K (reported as ``hvac``)."""
 
 PAIRS: tuple[tuple[str, str], ...] = (
     ("turning", "payload"), ("wind", "payload"), ("surface_rolling", "battery_resistance"),
@@ -101,7 +106,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "regen": ("ground",), "turning": ("ground",), "wind": ("aerial",),
     "payload": ("ground", "aerial"), "hvac": ("ground", "aerial"),
     "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
-    "drift": ("ground", "aerial"),
+    "drift": ("ground", "aerial"), "surface_label": ("ground",), "hvac_trip": ("ground", "aerial"),
 }
 """Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
 Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed
@@ -158,10 +163,32 @@ class ConcealedCase:
         stem = self.name.replace("/", "_")
         data = copy.deepcopy(self.scenario_toml)
         data["map"] = str(self.ctx.scenario.map_path)
+        if not self.ctx.world.true_map.surfaces:  # a labelled case: the map without surfaces
+            data["map"] = str(_write_map_without_surfaces(self.ctx.scenario.map_path,
+                                                          folder / f"{stem}_map.geojson"))
         scenario_path = folder / f"{stem}.toml"
         with atomic_path(scenario_path, ".toml") as tmp:
             tmp.write_text(tomli_w.dumps(data), encoding="utf-8")
         return scenario_path, write_recording(self.frame, folder / f"{stem}.csv")
+
+
+def _write_map_without_surfaces(source: Path, target: Path) -> Path:
+    """Copy the map GeoJSON ``source`` to ``target`` without its surface features (its
+    elevation raster copied beside it: a map names its raster in its own folder); atomic.
+    Returns ``target``."""
+    import json
+    import shutil
+
+    data = json.loads(Path(source).read_text(encoding="utf-8"))
+    data["features"] = [f for f in data["features"]
+                        if f.get("properties", {}).get("kind") != "surface"]
+    if "elevation" in data:
+        raster = Path(source).parent / data["elevation"]
+        data["elevation"] = f"{target.stem}_{raster.name}"
+        shutil.copyfile(raster, target.parent / data["elevation"])
+    with atomic_path(target, ".geojson") as tmp:
+        tmp.write_text(json.dumps(data), encoding="utf-8")
+    return target
 
 
 @dataclass
@@ -183,6 +210,8 @@ class _Plan:
     measurement: dict[str, float] = field(default_factory=dict)
     mass_over_omega_kg: float = 0.0
     surface_names: tuple[str, ...] = ()
+    labels: bool = False   # a classifier's ``surface`` column, the seen map without surfaces
+    ambient_C: tuple[float, float] = (0.0, 35.0)   # range of the ambient temperature's walk
 
     def shape_route(self, style: str) -> None:
         """Ask for a route style; the first term that asks wins (recipes run in
@@ -327,17 +356,54 @@ def _payload(plan: _Plan, rng) -> None:
 def _hvac(plan: _Plan, rng) -> None:
     mode = ("heat", "cool", "both")[int(rng.integers(3))]
     share = rng.uniform(0.08, 0.30)
+    plan.power_effects.append(_hvac_adder("hvac", mode, share))
+
+
+def _hvac_adder(key: str, mode: str, share: float, least_K: float = 0.0) -> Callable:
+    """The power effect of heating and / or cooling (``mode``) drawing ``share`` of the mean
+    power together; truth under ``key``. Only a side the ambient reaches by more than
+    ``least_K`` on average works (a trip that never drops below the setpoint does not heat;
+    at least the side it reaches most)."""
 
     def add(p, frame, power, _rng):
         t_c = frame["ambient_C"].to_numpy(float)
         feats = {"hvac_heat_W_per_K": np.maximum(0.0, HVAC_SETPOINT_C - t_c),
                  "hvac_cool_W_per_K": np.maximum(0.0, t_c - HVAC_SETPOINT_C)}
-        chosen = [k for k in feats if mode == "both" or k.startswith(f"hvac_{mode}")]
+        chosen = [k for k in feats if (mode == "both" or k.startswith(f"hvac_{mode}"))
+                  and float(np.mean(feats[k])) > least_K]
+        chosen = chosen or [max(feats, key=lambda k: float(np.mean(feats[k])))]
         target_W = share * float(np.mean(power)) / len(chosen)
-        p.truth["hvac"] = {k: target_W / max(float(np.mean(feats[k])), 1e-3) for k in chosen}
-        return power + sum(p.truth["hvac"][k] * feats[k] for k in chosen)
+        p.truth[key] = {k: target_W / max(float(np.mean(feats[k])), 1e-3) for k in chosen}
+        return power + sum(p.truth[key][k] * feats[k] for k in chosen)
 
-    plan.power_effects.append(add)
+    return add
+
+
+def _surface_label(plan: _Plan, rng) -> None:
+    """One surface rolls harder (as ``surface_rolling``), the map handed over has no surfaces
+    and the recording carries a terrain classifier's labels (``_with_labels``): the rolling
+    differs by surface (the map's own rolling coefficients too) and only the labels say
+    where."""
+    _surface_rolling(plan, rng)
+    plan.truth["surface_label"] = plan.truth.pop("surface_rolling")
+    plan.labels = True
+
+
+TRIP_AMBIENT_SPAN_K = (3.0, 10.0)
+"""Range of the span of a ``hvac_trip`` case's ambient temperature [K]: a trip of half an hour
+meets a few kelvin (the day warming, a valley), not the 0-35 C of a season."""
+
+
+def _hvac_trip(plan: _Plan, rng) -> None:
+    """``hvac`` on a trip-like ambient: a walk over 3-10 K somewhere in 0-35 C. Where it stays
+    on one side of the setpoint, the heating or cooling power is nearly constant over the
+    trip and the constant loads, refitted, take it: only its variation is evidence (the
+    detection limit that diagnosis states says how much of it a recording must carry)."""
+    span = rng.uniform(*TRIP_AMBIENT_SPAN_K)
+    low = rng.uniform(0.0, 35.0 - span)
+    plan.ambient_C = (float(low), float(low + span))
+    plan.power_effects.append(_hvac_adder("hvac_trip", "both", rng.uniform(0.08, 0.30),
+                                          least_K=0.5))
 
 
 def _battery_resistance(plan: _Plan, rng) -> None:
@@ -391,6 +457,7 @@ RECIPES: dict[str, Callable[[_Plan, np.random.Generator], None]] = {
     "inertia": _inertia, "regen": _regen, "turning": _turning, "wind": _wind,
     "payload": _payload, "hvac": _hvac, "battery_resistance": _battery_resistance,
     "battery_temperature": _battery_temperature, "drift": _drift,
+    "surface_label": _surface_label, "hvac_trip": _hvac_trip,
 }
 
 
@@ -610,7 +677,8 @@ def _check(terms: Sequence[str], kind: str | None, duration_s: float, rate_Hz: f
 
 
 def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
-                   duration_s: float = 1800.0, rate_Hz: float = 10.0) -> ConcealedCase:
+                   duration_s: float = 1800.0, rate_Hz: float = 10.0,
+                   labels: bool = False) -> ConcealedCase:
     """One concealed-effect case (see the module docstring).
 
     Parameters
@@ -620,6 +688,9 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
     kind : ``"ground"`` or ``"aerial"``; None: the terms' default (``KINDS``), ground for nulls
     duration_s : length of the run [s] (at least 60)
     rate_Hz : recording rate [Hz]
+    labels : write a terrain classifier's ``surface`` column and hand over the map without
+        its surfaces (always so for ``surface_label``); a null case with labels drives a world
+        whose surfaces all roll alike (``"null-ground-labels"``)
 
     Returns
     -------
@@ -647,13 +718,21 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
         RECIPES[term](plan, rng)
     if not terms:
         _mis_set(plan, rng)
+    plan.labels = plan.labels or labels
     truth_ctx = context_of(scenario_from_dict(plan.truth_toml, scenario_path))
     seen_ctx = context_of(scenario_from_dict(plan.seen_toml, scenario_path))
+    if plan.labels:
+        seen_ctx = without_surfaces(seen_ctx)
+        if not terms:  # nothing concealed: the ground rolls alike, the labels say nothing
+            truth_ctx = _rolling_alike(truth_ctx)
     frame, offset_s = _drive(plan, truth_ctx, rng, duration_s, rate_Hz)
     if "payload" in plan.truth:
         plan.truth["payload"]["payload_from_s"] = plan.sim_truth["payload_from_s"] + offset_s
+    if plan.labels:
+        frame = _with_labels(plan, context_of(scenario_from_dict(plan.truth_toml, scenario_path)),
+                             seen_ctx, frame, rng, rate_Hz)
     frame = _finish(plan, truth_ctx, frame, rng)
-    name = f"{case_label(terms, kind)}/seed{seed}"
+    name = f"{case_label(terms, kind)}{'-labels' if plan.labels and not terms else ''}/seed{seed}"
     recording = recording_from_frame(frame, source=name)
     truth = {t: plan.truth[t] for t in terms}
     return ConcealedCase(name, kind, seen_ctx, recording, frame, truth, plan.seen_toml,
@@ -665,9 +744,10 @@ def drawn_world(world):
     return replace(world, map=world.true_map, keep_away_m=0.0)
 
 
-_ROUTE_PRIORITY = ("turning", "surface_rolling", "grade", "regen", "aero_drag", *(
-    t for t in CONCEALABLE if t not in ("turning", "surface_rolling", "grade", "regen",
-                                        "aero_drag")))
+_ROUTE_PRIORITY = ("turning", "surface_rolling", "surface_label", "grade", "regen", "aero_drag",
+                   *(t for t in CONCEALABLE if t not in ("turning", "surface_rolling",
+                                                         "surface_label", "grade", "regen",
+                                                         "aero_drag")))
 """Recipe order: the first sets the route style, later ones keep it (``route_style`` is only
 set by route-shaping terms, and the first such term wins)."""
 
@@ -730,6 +810,74 @@ def _surface_share_ok(ctx: Context, style: str, frame: pd.DataFrame) -> bool:
     return SURFACE_SHARE[0] <= float(np.mean(on)) <= SURFACE_SHARE[1]
 
 
+LABEL_LAG_S = (0.5, 3.0)
+"""Range of a labelled case's classifier delay: its ``surface`` label at t names the ground at
+t - lag [s]."""
+LABEL_ERROR_SHARE = (0.02, 0.08)
+"""Range of the share of samples a labelled case's classifier names wrongly, in bursts of
+0.5-3 s (a shadow, a wet patch) [-]."""
+
+
+def without_surfaces(ctx: Context) -> Context:
+    """``ctx`` on its map with the surface polygons removed (the default surface kept)."""
+    world = ctx.world
+    return replace(ctx, world=world.with_map(replace(world.true_map, surfaces=())))
+
+
+def _rolling_alike(ctx: Context) -> Context:
+    """``ctx`` with every surface polygon rolling as the default ground (names and shapes
+    kept: a route can still be drawn over them and a classifier still names them)."""
+    world = ctx.world
+    alike = tuple(replace(s, crr=world.default_crr) for s in world.true_map.surfaces)
+    return replace(ctx, world=world.with_map(replace(world.true_map, surfaces=alike)))
+
+
+def _with_labels(plan: _Plan, surfaced: Context, seen: Context, frame: pd.DataFrame, rng,
+                 rate_Hz: float) -> pd.DataFrame:
+    """The frame with a terrain classifier's ``surface`` column: the surface under the robot
+    (``surfaced``'s map: its surface names, else its default surface's), delayed by a lag in
+    ``LABEL_LAG_S`` and wrong in bursts (``LABEL_ERROR_SHARE``). A ``surface_label`` case's
+    truth becomes each label's rolling coefficient on the column of the map handed over
+    (``seen``: the default rolling coefficient everywhere), ``rolling_kg_<label>``, and the
+    delay ``label_lag_s``."""
+    world = surfaced.world
+    code = world.surface_code_at(frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float))
+    names = np.array([*world.map.surface_names, world.default_surface_name])
+    true_labels = names[np.where(code >= 0, code, len(names) - 1)]
+    lag_s = float(rng.uniform(*LABEL_LAG_S))
+    shift = round(lag_s * rate_Hz)
+    labels = np.r_[np.repeat(true_labels[:1], shift), true_labels[:len(true_labels) - shift]]
+    seen_names = np.unique(true_labels)
+    wrong = np.zeros(labels.size, bool)
+    error_share = rng.uniform(*LABEL_ERROR_SHARE)
+    while wrong.mean() < error_share and seen_names.size > 1:
+        start = int(rng.integers(labels.size))
+        burst = slice(start, start + max(1, int(rng.uniform(0.5, 3.0) * rate_Hz)))
+        others = seen_names[seen_names != labels[start]]
+        labels[burst] = others[int(rng.integers(others.size))]
+        wrong[burst] = True
+    frame["surface"] = labels
+    if "surface_label" in plan.truth:
+        plan.truth["surface_label"] = {**_label_truth(plan, surfaced, seen, seen_names),
+                                       "label_lag_s": shift / rate_Hz}
+    return frame
+
+
+def _label_truth(plan: _Plan, surfaced: Context, seen: Context, names) -> dict:
+    """Each label's true rolling coefficient on the seen model's rolling column [kg]: the
+    truth's coefficient for that surface times its rolling coefficient over the seen map's
+    default one (the seen model charges the default everywhere)."""
+    crr = {s.name: s.crr for s in surfaced.world.map.surfaces}  # later features win
+    model = surfaced.model
+    out = {}
+    for name in names:
+        coeff = f"rolling_kg_{name}"
+        kg = model.coefficient(coeff) if coeff in model.names else model.coefficient("rolling_kg")
+        ratio = crr.get(name, surfaced.world.default_crr) / seen.world.default_crr
+        out[f"rolling_kg_{str(name).lower()}"] = float(kg * ratio)
+    return out
+
+
 def _with_landed_ends(frame: pd.DataFrame, ctx: Context, landed_s, dt: float):
     """Rows at rest before take-off and after landing; power: the model at rest (no hover)."""
     def rest(n, row):
@@ -755,7 +903,7 @@ def _finish(plan: _Plan, ctx: Context, frame: pd.DataFrame, rng) -> pd.DataFrame
     """Conditions columns, concealed power and battery effects, soc, measurement effects."""
     t = frame["t_s"].to_numpy(float)
     dt = float(np.median(np.diff(t)))
-    frame["ambient_C"] = _smooth_walk(rng, t, 0.0, 35.0)
+    frame["ambient_C"] = _smooth_walk(rng, t, *plan.ambient_C)
     frame["battery_C"] = _battery_temperature_C(rng, t, plan.battery_cold)
     if plan.sensor_schedule:
         frame["sensor_rate_Hz"] = _sensor_schedule_Hz(rng, t)
@@ -782,6 +930,7 @@ def _finish(plan: _Plan, ctx: Context, frame: pd.DataFrame, rng) -> pd.DataFrame
         frame[c] = frame[c] + rng.standard_normal(t.size) * pos_sd
     keep = ["t_s", "x_m", "y_m", "z_m", "v_mps", "yaw_rate_radps", "accel_mps2", "power_W",
             "soc", "sensor_rate_Hz", "ambient_C", "battery_C"]
+    keep += ["surface"] if plan.labels else []
     return frame[keep].reset_index(drop=True)
 
 
@@ -799,6 +948,10 @@ def case_label(terms: Sequence[str], kind: str | None) -> str:
 
 def concealed_suite(seeds: Iterable[int], duration_s: float = 1800.0,
                     rate_Hz: float = 10.0) -> list[ConcealedCase]:
-    """Every case of ``suite_requests`` for each seed (seed by seed, in that order)."""
-    return [concealed_case(terms, seed, kind=kind, duration_s=duration_s, rate_Hz=rate_Hz)
-            for seed in seeds for terms, kind in suite_requests()]
+    """Every case of ``suite_requests`` for each seed, then the ground null case with a
+    classifier's surface labels (seed by seed, in that order)."""
+    return [case for seed in seeds for case in (
+        *(concealed_case(terms, seed, kind=kind, duration_s=duration_s, rate_Hz=rate_Hz)
+          for terms, kind in suite_requests()),
+        concealed_case((), seed, kind="ground", duration_s=duration_s, rate_Hz=rate_Hz,
+                       labels=True))]

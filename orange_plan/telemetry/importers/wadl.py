@@ -143,8 +143,8 @@ def _track_yaw_rate(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def read_wadl(path: str | Path) -> pd.DataFrame:
-    """Read one flight (its ``<id>.csv``; the sibling files are found by name) into SPEC §3
-    columns on a 1 s grid (see the module docstring).
+    """Read one flight (its ``<id>.csv``; the sibling files are found by name) into the recording
+    columns of docs/formats.md on a 1 s grid (see the module docstring).
 
     Raises
     ------
