@@ -304,13 +304,45 @@ def swept_cells(world, cells, r: float, angle_deg: float | None, segments_free, 
         angle_deg = float(angle_deg) % 180.0
         s = shapely.get_coordinates(sensed) @ _directions(angle_deg)[1]
         offsets = _lane_offsets(float(s.min()), float(s.max()), r)
+    if angle_deg is None:
+        cells, angles = same_angle_merged(cells, r)
+    else:
+        angles = [angle_deg] * len(cells)
     out = []
-    for cell in cells:
-        angle = _best_angle(cell, r) if angle_deg is None else angle_deg
+    for cell, angle in zip(cells, angles, strict=True):
         lanes = cell_lanes(cell, inner, angle, r, world.keep_away_m, segments_free, offsets)
         if lanes:
             out.append(Cell(cell, angle, lanes))
     return out
+
+
+def same_angle_merged(cells, r: float) -> tuple[list, list[float]]:
+    """Cells with their own angles, neighbours that share an angle merged while the merged
+    cell keeps it (one set of lanes across them: no cut between them to turn at, no
+    footprint's overlap on either side of it).
+
+    Returns (cells, angles [deg])."""
+    cells = list(cells)
+    angles = [_best_angle(c, r) for c in cells]
+    merged = True
+    while merged:
+        merged = False
+        tree = shapely.STRtree(cells)
+        a, b = tree.query(cells, predicate="intersects")
+        for i, j in zip(a.tolist(), b.tolist(), strict=True):
+            if i >= j or angles[i] != angles[j]:
+                continue
+            shared = shapely.intersection(cells[i].boundary, cells[j].boundary).length
+            if shared < 2.0 * r:
+                continue
+            union = _union([cells[i], cells[j]])
+            if union.geom_type != "Polygon" or _best_angle(union, r) != angles[i]:
+                continue
+            cells[i] = union
+            del cells[j], angles[j]
+            merged = True
+            break
+    return cells, angles
 
 
 # --- joining the cells ------------------------------------------------------------------------
