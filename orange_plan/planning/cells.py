@@ -37,6 +37,7 @@ import shapely
 from shapely import affinity
 
 from orange_plan.planning.coverage import (
+    LANE_CLEARANCE_FRACTION,
     MIN_LANE_FRACTION,
     _best_angle,
     _clip_lines,
@@ -251,14 +252,13 @@ def _union(parts):
 # --- lanes in a cell ----------------------------------------------------------------------------
 
 
-def cell_lanes(cell, inner, angle_deg: float, r: float, grow_m: float, segments_free,
+def cell_lanes(cell, angle_deg: float, r: float, grow_m: float, segments_free,
                offsets=None):
     """Lanes of one cell at ``angle_deg``, grouped by lane as ``lawnmower.sweep_lanes``.
 
     Parameters
     ----------
     cell : the cell (Polygon) [m]
-    inner : the free space eroded by the lanes' clearance (prepared) [m]
     angle_deg : lane direction [deg]
     r : sensor radius [m]; lanes at most 2 r apart, r in from the cell's extent grown by
         ``grow_m`` (the robot's keep-away: the sensor sees up to the true walls, as the
@@ -272,10 +272,13 @@ def cell_lanes(cell, inner, angle_deg: float, r: float, grow_m: float, segments_
     list of lanes in sweep order, each a list of pieces (2, 2) ordered along the lane
     """
     u, nrm = _directions(angle_deg)
+    clearance_m = LANE_CLEARANCE_FRACTION * r
     if offsets is None:
         s = shapely.get_coordinates(cell) @ nrm
         offsets = _lane_offsets(float(s.min()) - grow_m, float(s.max()) + grow_m, r)
-    region = shapely.intersection(cell, inner)
+    # the cell lies in the free space: eroding it keeps lanes off walls and obstacles (and
+    # a hair off the cuts, which the neighbour's lanes and both footprints cover)
+    region = cell.buffer(-clearance_m, quad_segs=2)
     if region.is_empty:
         return []
     line, t_in, t_out = _clip_lines(_ring_edges(region), offsets, u, nrm)
@@ -289,7 +292,7 @@ def cell_lanes(cell, inner, angle_deg: float, r: float, grow_m: float, segments_
             for k in np.unique(line)]
 
 
-def swept_cells(world, cells, r: float, angle_deg: float | None, segments_free, inner,
+def swept_cells(world, cells, r: float, angle_deg: float | None, segments_free,
                 sensed=None) -> list[Cell]:
     """Each cell with its lanes (cells with none left out: their area is sensed from the
     lanes beside them, if at all).
@@ -310,38 +313,38 @@ def swept_cells(world, cells, r: float, angle_deg: float | None, segments_free, 
         angles = [angle_deg] * len(cells)
     out = []
     for cell, angle in zip(cells, angles, strict=True):
-        lanes = cell_lanes(cell, inner, angle, r, world.keep_away_m, segments_free, offsets)
+        lanes = cell_lanes(cell, angle, r, world.keep_away_m, segments_free, offsets)
         if lanes:
             out.append(Cell(cell, angle, lanes))
     return out
 
 
 def same_angle_merged(cells, r: float) -> tuple[list, list[float]]:
-    """Cells with their own angles, neighbours that share an angle merged while the merged
-    cell keeps it (one set of lanes across them: no cut between them to turn at, no
-    footprint's overlap on either side of it).
+    """Cells with their own angles, neighbours that share an angle (and at least a lane
+    spacing of boundary) merged: one set of lanes across them, no cut between them to turn
+    at, no footprints' overlap on either side of it.
 
     Returns (cells, angles [deg])."""
     cells = list(cells)
     angles = [_best_angle(c, r) for c in cells]
     merged = True
-    while merged:
-        merged = False
-        tree = shapely.STRtree(cells)
-        a, b = tree.query(cells, predicate="intersects")
+    while merged:  # a pass merges disjoint pairs; passes until none is left
+        merged, gone, grown = False, set(), set()
+        a, b = shapely.STRtree(cells).query(cells, predicate="intersects")
         for i, j in zip(a.tolist(), b.tolist(), strict=True):
-            if i >= j or angles[i] != angles[j]:
+            if i >= j or angles[i] != angles[j] or {i, j} & (gone | grown):
                 continue
-            shared = shapely.intersection(cells[i].boundary, cells[j].boundary).length
-            if shared < 2.0 * r:
+            if shapely.intersection(cells[i].boundary, cells[j].boundary).length < 2.0 * r:
                 continue
             union = _union([cells[i], cells[j]])
-            if union.geom_type != "Polygon" or _best_angle(union, r) != angles[i]:
+            if union.geom_type != "Polygon":
                 continue
             cells[i] = union
-            del cells[j], angles[j]
+            gone.add(j)
+            grown.add(i)
             merged = True
-            break
+        keep = [k for k in range(len(cells)) if k not in gone]
+        cells, angles = [cells[k] for k in keep], [angles[k] for k in keep]
     return cells, angles
 
 

@@ -15,7 +15,6 @@ decided in flight by a return rule (``bench.px4_rtl``), as an autopilot would.
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass
@@ -131,16 +130,6 @@ class SweepLanes:
             self._lanes[base] = sweep_lanes(self.world, self.grid, self.r, base)
         lanes = self._lanes[base]
         return lanes[::-1] if float(angle_deg) % 360.0 >= 180.0 else lanes
-
-    @functools.cached_property
-    def inner(self):
-        """Where lanes are driven: the robot's free space eroded by the lanes' clearance
-        (``coverage.LANE_CLEARANCE_FRACTION``), prepared."""
-        from orange_plan.planning.coverage import LANE_CLEARANCE_FRACTION
-
-        inner = self.world.map.free_space.buffer(-LANE_CLEARANCE_FRACTION * self.r)
-        shapely.prepare(inner)
-        return inner
 
 
 def boustrophedon(lanes) -> list[np.ndarray]:

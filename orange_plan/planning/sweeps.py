@@ -105,6 +105,8 @@ class Sweep:
 def _pattern(angle_deg: float, order: str, cells: int, per_cell: bool) -> str:
     if order == "baseline":
         return "sweep: the lawnmower's own route"
+    if cells == 1:
+        return f"sweep of the whole free space as one cell, {order} order"
     if cells:
         lanes = "each at its own angle" if per_cell else f"lanes at {angle_deg:g} deg"
         return (f"{cells} cells cut along {angle_deg:g} deg, {lanes}, joined "
@@ -254,7 +256,6 @@ def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_
     own angles and at the decomposition's, in every cell order."""
     from orange_plan.planning.cells import CELL_ORDERS, cell_pieces, decompose, swept_cells
 
-    inner = lanes.inner
     out = []
     for direction in directions_deg:
         polygons = decompose(world.map.free_space, direction, lanes.r)
@@ -262,7 +263,7 @@ def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_
             continue
         for per_cell in (True, False):
             cells = swept_cells(world, polygons, lanes.r, None if per_cell else direction,
-                                segments_free, inner, lanes.grid.free_space)
+                                segments_free, lanes.grid.free_space)
             for how in CELL_ORDERS:
                 pieces = cell_pieces(cells, how, home_xy)
                 if pieces:
