@@ -273,7 +273,7 @@ def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_
 
 def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: float | None = None,
                time_left_s: float = math.inf, max_length_m: float = math.inf,
-               angles_deg=DEFAULT_ANGLES_DEG, rescore: int = RESCORE,
+               angles_deg=DEFAULT_ANGLES_DEG, rescore: int | None = None,
                lanes: SweepLanes | None = None, cells: bool = True) -> Sweep | None:
     """The complete sweep that senses most before the closed-loop rule turns it home.
 
@@ -284,6 +284,7 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
     straight-joined score are joined round obstacles and scored again.
     """
     r = ctx.scenario.mission.sensor_radius_m
+    rescore = RESCORE if rescore is None else rescore
     cost = reach.fast
     home_xy = np.asarray(reach.home_xy_m, float)
     if e_left_J is None:
