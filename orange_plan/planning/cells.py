@@ -45,6 +45,7 @@ from orange_plan.planning.coverage import (
     _lane_offsets,
     _ring_edges,
 )
+from orange_plan.planning.lawnmower import ordered_pieces
 
 MAX_CELLS = 48
 """Most cells kept from one decomposition: smaller ones are merged into their neighbours
@@ -373,9 +374,7 @@ sensed before the robot must turn); ``in``, farthest first (the route ends near 
 def cell_pieces(cells: list[Cell], how: str, home_xy) -> list[np.ndarray]:
     """The cells' lane pieces in driving order (``CELL_ORDERS``): each cell entered at the
     end of its lane set nearer the robot, each lane driven from its nearer end
-    (``sweeps.ordered_pieces``)."""
-    from orange_plan.planning.sweeps import ordered_pieces
-
+    (``lawnmower.ordered_pieces``)."""
     home = np.asarray(home_xy, float)
     by_distance = [int(i) for i in np.argsort([_gap(home, c) for c in cells], kind="stable")]
     queue = by_distance[::-1] if how == "in" else by_distance

@@ -24,6 +24,10 @@ least as much as the baseline under the same rule, by construction. Lane orders
 nearest home and work outward, or work inward to end near home, so a mission that must turn
 home early has covered what is near home and keeps its way home short (an anytime order).
 Pieces of one lane are driven in the direction whose first piece starts nearest the robot.
+Beside them, cell sweeps (``planning.cells``): the free space cut into boustrophedon cells,
+each swept at its own angle or on the whole map's lanes, cell by cell (``cell_candidates``);
+each kind's best few are joined and scored again, so adding them never drops a whole-map
+sweep that would have been kept.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from orange_plan.planning.lawnmower import (
     cumulative_energy_time,
     densify,
     join_pieces,
+    ordered_pieces,
     straight_route,
 )
 from orange_plan.planning.paths import cut_path
@@ -139,20 +144,6 @@ def lane_orders(lanes, home_xy) -> dict[str, list[int]]:
             seen.add(tuple(order))
             unique[name] = order
     return unique
-
-
-def ordered_pieces(lanes, order, start_xy) -> list[np.ndarray]:
-    """The lanes' pieces in driving order: each lane in the direction whose first piece
-    starts nearest where the robot is."""
-    at = np.asarray(start_xy, float)
-    out = []
-    for k in order:
-        forward = [np.asarray(p, float) for p in lanes[k]]
-        backward = [p[::-1] for p in forward[::-1]]
-        pieces = min((forward, backward), key=lambda ps: float(np.hypot(*(ps[0][0] - at))))
-        out += pieces
-        at = pieces[-1][1]
-    return out
 
 
 def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
