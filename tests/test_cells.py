@@ -133,7 +133,7 @@ def test_many_obstacles_give_at_most_max_cells():
     _assert_partition(cells, free)
 
 
-@pytest.mark.parametrize("how", CELL_ORDERS)
+@pytest.mark.parametrize("how", (*CELL_ORDERS, "in"))
 def test_joining_the_cells_drives_every_piece_once(how):
     free = box(0, 0, 100, 60).difference(box(40, 20, 60, 40))
     cells = swept_cells(_world(), decompose(free, 0.0, 2.0), 2.0, None, _always_free)

@@ -365,14 +365,15 @@ def _gap(at, cell: Cell) -> float:
     return float(np.min(np.hypot(*(np.vstack([first, last]) - at).T)))
 
 
-CELL_ORDERS = ("near", "out", "in")
+CELL_ORDERS = ("near", "out")
 """How the cells are joined: ``near``, the nearest cell next (from home: transits short);
 ``out``, by distance from home, nearest first (an anytime order: what is near home is
-sensed before the robot must turn); ``in``, farthest first (the route ends near home)."""
+sensed before the robot must turn). (``cell_pieces`` also knows ``in``, farthest first: the
+route ends near home; it never won on the benchmark maps and is not tried.)"""
 
 
 def cell_pieces(cells: list[Cell], how: str, home_xy) -> list[np.ndarray]:
-    """The cells' lane pieces in driving order (``CELL_ORDERS``): each cell entered at the
+    """The cells' lane pieces in driving order (``CELL_ORDERS`` or ``in``): each cell entered at the
     end of its lane set nearer the robot, each lane driven from its nearer end
     (``lawnmower.ordered_pieces``)."""
     home = np.asarray(home_xy, float)

@@ -247,7 +247,7 @@ def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_
     own angles and at the decomposition's, in every cell order."""
     from orange_plan.planning.cells import CELL_ORDERS, cell_pieces, decompose, swept_cells
 
-    out = []
+    out, seen = [], set()
     for direction in directions_deg:
         polygons = decompose(world.map.free_space, direction, lanes.r)
         if len(polygons) < 2:  # one cell: the whole-map sweeps already hold it
@@ -257,7 +257,9 @@ def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_
                                 segments_free, lanes.grid.free_space)
             for how in CELL_ORDERS:
                 pieces = cell_pieces(cells, how, home_xy)
-                if pieces:
+                key = np.concatenate(pieces).round(6).tobytes() if pieces else b""
+                if pieces and key not in seen:  # merged cells repeat across directions
+                    seen.add(key)
                     out.append(_Candidate(direction, how, pieces, len(cells), per_cell))
     return out
 
