@@ -126,32 +126,30 @@ def _critical_vertices(free) -> np.ndarray:
         y = xy[:, 1]
         flat = np.abs(np.roll(y, -1) - y) <= tol  # edge i -> i+1 runs along x
         out.append(xy[flat | np.roll(flat, 1)])
-        # local extremes across x, flat runs skipped: compare with the nearest vertex
-        # before and after at another y
-        keep = ~flat
-        idx = np.flatnonzero(keep)
+        # local extremes across x: compare with the nearest vertex before and after at
+        # another y (flat runs skipped)
+        idx = np.flatnonzero(~flat)
         if len(idx) < 2:
             continue
         yk = y[idx]
-        prev_y, next_y = np.roll(yk, 1), y[(idx + 1) % len(y)]
-        # the next vertex at another y: skip along flat runs
-        nxt = (idx + 1) % len(y)
-        for _ in range(len(y)):
-            still = np.abs(y[nxt] - yk) <= tol
-            if not still.any():
-                break
-            nxt = np.where(still, (nxt + 1) % len(y), nxt)
-        next_y = y[nxt]
-        prev = (idx - 1) % len(y)
-        for _ in range(len(y)):
-            still = np.abs(y[prev] - yk) <= tol
-            if not still.any():
-                break
-            prev = np.where(still, (prev - 1) % len(y), prev)
-        prev_y = y[prev]
+        next_y = y[_off_level(y, idx, +1, tol)]
+        prev_y = y[_off_level(y, idx, -1, tol)]
         extreme = (prev_y - yk) * (next_y - yk) > 0
         out.append(xy[idx[extreme]])
     return np.unique(np.concatenate(out), axis=0) if out else np.empty((0, 2))
+
+
+def _off_level(y, idx, step: int, tol: float) -> np.ndarray:
+    """For each vertex ``idx`` of a ring, the nearest vertex ``step`` (+1 forward, -1 back)
+    along it whose y differs from its own by more than ``tol``."""
+    n = len(y)
+    at = (idx + step) % n
+    for _ in range(n):
+        level = np.abs(y[at] - y[idx]) <= tol
+        if not level.any():
+            break
+        at = np.where(level, (at + step) % n, at)
+    return at
 
 
 def _cut_segments(free) -> list:
