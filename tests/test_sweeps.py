@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 import pytest
+import shapely
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from planning_worlds import draw_world_spec, write_world
@@ -19,10 +20,14 @@ from planning_worlds import draw_world_spec, write_world
 from orange_plan.bench.plan import driven_home
 from orange_plan.bench.px4_rtl import EnergyRule
 from orange_plan.context import load_context
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, PlanningError
 from orange_plan.planning.coverage import coverage_grid
 from orange_plan.planning.homepaths import HomePaths
-from orange_plan.planning.lawnmower import cumulative_energy_time, plan_lawnmower
+from orange_plan.planning.lawnmower import (
+    DEFAULT_ANGLES_DEG,
+    cumulative_energy_time,
+    plan_lawnmower,
+)
 from orange_plan.planning.plan import StartState
 from orange_plan.planning.reach import prepare_reach
 from orange_plan.planning.reserve import EnergyReserve
@@ -220,3 +225,89 @@ def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_fac
         return score_route(ctx, fresh.fast, other, setup.grid, xy, left, limit, 0.5).closed_m2
 
     assert sensed(route) >= 0.9 * sensed(lawn) - 2 * setup.grid.cell_area_m2
+
+
+@st.composite
+def obstacle_worlds(draw):
+    spec = draw_world_spec(draw, width_cells=(12, 20), height_cells=(8, 14), box_cells=(3, 5),
+                           hill_height_m=4.0, ramp_max=0.1, surface_width_m=8.0)
+    return dict(spec, reserve=draw(st.sampled_from([{"fraction": 0.1}, {"confidence": 0.95}])),
+                rated_energy_Wh=draw(st.floats(0.15, 1.2)),
+                radius_m=draw(st.sampled_from([None, 0.3])))
+
+
+def _every_sweep_joined(ctx, setup, home, detours, lanes, e_left, limit, max_m):
+    """Every candidate of ``best_sweep`` (each angle and lane order, each decomposition, cell
+    angle rule and cell order) joined round obstacles and scored, independently of it."""
+    from orange_plan.planning.coverage import best_sweep_angle_deg
+    from orange_plan.planning.lawnmower import join_pieces
+    from orange_plan.planning.sweeps import cell_candidates
+
+    reach, home_xy = setup.reach, np.asarray(setup.reach.home_xy_m, float)
+    pieces = []
+    for angle in sorted({float(a) % 180.0 for a in DEFAULT_ANGLES_DEG}):
+        at = lanes(angle)
+        pieces += [ordered_pieces(at, o, home_xy) for o in lane_orders(at, home_xy).values()]
+    r = ctx.scenario.mission.sensor_radius_m
+    fewest = best_sweep_angle_deg(ctx.world, r)
+    for direction in (fewest, (fewest + 90.0) % 180.0):
+        pieces += [c.pieces for c in cell_candidates(ctx.world, lanes, home_xy, [direction],
+                                                     detours.segments_free)]
+    scores = []
+    for p in pieces:
+        try:
+            xy = join_pieces(home_xy, p, detours)[0]
+        except PlanningError:
+            continue
+        scores.append(score_route(ctx, reach.fast, home, setup.grid, xy, e_left, limit,
+                                  score_step_m(ctx), max_m, reach.reserve).closed_m2)
+    return scores
+
+
+@pytest.mark.timeout(600)
+@settings(max_examples=5, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(spec=obstacle_worlds())
+def test_the_plan_senses_at_least_every_sweep_whole_map_or_cell_by_cell(
+        tmp_path_factory, monkeypatch, spec):
+    """With every candidate joined and scored (``RESCORE``, ``CELL_RESCORE`` above their
+    count), the plan's closed-loop coverage is at least that of each whole-map sweep and each
+    cell sweep under the same homing rule, each recomputed here; the plan starts and ends at
+    home, keeps every margin >= 0, and its route keeps the robot's radius off every obstacle
+    and the boundary."""
+    from orange_plan.planning import sweeps
+    from orange_plan.planning.lawnmower import Detours, SweepLanes
+
+    monkeypatch.setattr(sweeps, "RESCORE", 10_000)
+    monkeypatch.setattr(sweeps, "CELL_RESCORE", 10_000)
+    ctx = load_context(write_world(tmp_path_factory.mktemp("cells"), **spec))
+    start = StartState()
+    try:
+        setup = tour_setup(ctx, start, 250, 0, 40, lambda text: None)
+    except InputError:
+        return
+    reach = setup.reach
+    home = HomePaths(reach).calibrate(functools.partial(driven_energy_J, reach.exact))
+    rm = reach.roadmap
+    detours = Detours(ctx.world, rm.xy_m, rm.src, rm.dst)
+    lanes = SweepLanes(ctx.world, setup.grid, ctx.scenario.mission.sensor_radius_m)
+    limit = ctx.scenario.mission.time_limit_s or math.inf
+    max_m = 1.05 * drivable_m(ctx, reach, limit)
+    left = reach.energy_available_J - reach.energy_used_J
+    swept = sweep_tour(ctx, setup, start, t0=0.0, optimise_speed=False)
+    if swept is None:
+        return
+    home_xy = np.asarray(ctx.world.home_xy_m)
+    assert np.allclose(swept.xy_m[0], home_xy) and np.allclose(swept.xy_m[-1], home_xy)
+    assert np.all(swept.margin_J >= 0)
+    route = swept.closed_loop_route()[0]
+    assert np.allclose(route[-1], home_xy)
+    true_map, radius = ctx.world.true_map, ctx.world.keep_away_m
+    lines = shapely.linestrings(np.stack([route[:-1], route[1:]], axis=1))
+    assert shapely.covers(true_map.boundary.buffer(-radius + 1e-6), lines).all()
+    if not true_map.keep_out.is_empty:
+        assert (shapely.distance(true_map.keep_out, lines) >= radius - 1e-6).all()
+
+    planned = swept.summary["closed_loop_coverage_m2"]
+    scores = _every_sweep_joined(ctx, setup, home, detours, lanes, left, limit, max_m)
+    assert scores and planned >= max(scores) - 1e-6

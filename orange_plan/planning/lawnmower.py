@@ -143,6 +143,20 @@ def boustrophedon(lanes) -> list[np.ndarray]:
     return order
 
 
+def ordered_pieces(lanes, order, start_xy) -> list[np.ndarray]:
+    """The lanes' pieces in driving order: each lane in the direction whose first piece
+    starts nearest where the robot is."""
+    at = np.asarray(start_xy, float)
+    out = []
+    for k in order:
+        forward = [np.asarray(p, float) for p in lanes[k]]
+        backward = [p[::-1] for p in forward[::-1]]
+        pieces = min((forward, backward), key=lambda ps: float(np.hypot(*(ps[0][0] - at))))
+        out += pieces
+        at = pieces[-1][1]
+    return out
+
+
 # --- detours over the roadmap ---------------------------------------------------------------
 
 

@@ -24,22 +24,28 @@ least as much as the baseline under the same rule, by construction. Lane orders
 nearest home and work outward, or work inward to end near home, so a mission that must turn
 home early has covered what is near home and keeps its way home short (an anytime order).
 Pieces of one lane are driven in the direction whose first piece starts nearest the robot.
+Beside them, cell sweeps (``planning.cells``): the free space cut into boustrophedon cells,
+each swept at its own angle or on the whole map's lanes, cell by cell (``cell_candidates``);
+each kind's best few are joined and scored again, so adding them never drops a whole-map
+sweep that would have been kept.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from orange_plan.errors import PlanningError
+from orange_plan.planning.coverage import best_sweep_angle_deg
 from orange_plan.planning.lawnmower import (
     DEFAULT_ANGLES_DEG,
     SweepLanes,
     cumulative_energy_time,
     densify,
     join_pieces,
+    ordered_pieces,
     straight_route,
 )
 from orange_plan.planning.paths import cut_path
@@ -76,10 +82,14 @@ class Sweep:
     Attributes
     ----------
     xy_m : home -> lane pieces -> home, joined round obstacles [m]
-    angle_deg : lane direction [deg]
-    order : lane order name (``lane_orders``; "baseline": the lawnmower's own route)
+    angle_deg : lane direction [deg]; for a cell sweep, the decomposition direction
+    order : lane order name (``lane_orders``; "baseline": the lawnmower's own route; for a
+        cell sweep ``cells.CELL_ORDERS``)
     score : ``RouteScore`` on the joined route
-    tried : (angle, order) pairs scored
+    tried : patterns scored (angle and lane order, decomposition and cell order)
+    cells : 0 for a whole-map sweep, else the cells swept
+    per_cell_angles : a cell sweep whose cells each have their own angle
+    rivals : (pattern, closed_m2, open_m2) of every route joined and scored again
     """
 
     xy_m: np.ndarray
@@ -87,6 +97,26 @@ class Sweep:
     order: str
     score: RouteScore
     tried: int
+    cells: int = 0
+    per_cell_angles: bool = False
+    rivals: tuple = ()
+
+    @property
+    def pattern(self) -> str:
+        """What the route is, in words."""
+        return _pattern(self.angle_deg, self.order, self.cells, self.per_cell_angles)
+
+
+def _pattern(angle_deg: float, order: str, cells: int, per_cell: bool) -> str:
+    if order == "baseline":
+        return "sweep: the lawnmower's own route"
+    if cells == 1:
+        return f"sweep of the whole free space as one cell, {order} order"
+    if cells:
+        lanes = "each at its own angle" if per_cell else f"lanes at {angle_deg:g} deg"
+        return (f"{cells} cells cut along {angle_deg:g} deg, {lanes}, joined "
+                f"{order}")
+    return f"sweep at {angle_deg:g} deg, {order} lane order"
 
 
 def lane_orders(lanes, home_xy) -> dict[str, list[int]]:
@@ -114,20 +144,6 @@ def lane_orders(lanes, home_xy) -> dict[str, list[int]]:
             seen.add(tuple(order))
             unique[name] = order
     return unique
-
-
-def ordered_pieces(lanes, order, start_xy) -> list[np.ndarray]:
-    """The lanes' pieces in driving order: each lane in the direction whose first piece
-    starts nearest where the robot is."""
-    at = np.asarray(start_xy, float)
-    out = []
-    for k in order:
-        forward = [np.asarray(p, float) for p in lanes[k]]
-        backward = [p[::-1] for p in forward[::-1]]
-        pieces = min((forward, backward), key=lambda ps: float(np.hypot(*(ps[0][0] - at))))
-        out += pieces
-        at = pieces[-1][1]
-    return out
 
 
 def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
@@ -210,17 +226,58 @@ def score_step_m(ctx) -> float:
     return float(np.clip(0.2 * ctx.scenario.mission.sensor_radius_m, 0.2, 10.0))
 
 
+DECOMPOSITIONS = 3
+"""Decomposition directions of the cell sweeps: the whole map's fewest-turns angle, the
+angle across it and the best-scoring whole-map angle (when distinct)."""
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """A route's lane pieces before they are joined round obstacles."""
+
+    angle_deg: float
+    order: str
+    pieces: list
+    cells: int = 0
+    per_cell_angles: bool = False
+
+
+def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_free):
+    """Cell sweeps (``planning.cells``) along each decomposition direction: cells at their
+    own angles and at the decomposition's, in every cell order."""
+    from orange_plan.planning.cells import CELL_ORDERS, cell_pieces, decompose, swept_cells
+
+    out, seen = [], set()
+    for direction in directions_deg:
+        polygons = decompose(world.map.free_space, direction, lanes.r)
+        if len(polygons) < 2:  # one cell: the whole-map sweeps already hold it
+            continue
+        for per_cell in (True, False):
+            cells = swept_cells(world, polygons, lanes.r, None if per_cell else direction,
+                                segments_free, lanes.grid.free_space)
+            for how in CELL_ORDERS:
+                pieces = cell_pieces(cells, how, home_xy)
+                key = np.concatenate(pieces).round(6).tobytes() if pieces else b""
+                if pieces and key not in seen:  # merged cells repeat across directions
+                    seen.add(key)
+                    out.append(_Candidate(direction, how, pieces, len(cells), per_cell))
+    return out
+
+
 def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: float | None = None,
                time_left_s: float = math.inf, max_length_m: float = math.inf,
-               angles_deg=DEFAULT_ANGLES_DEG, rescore: int = RESCORE,
-               lanes: SweepLanes | None = None) -> Sweep | None:
+               angles_deg=DEFAULT_ANGLES_DEG, rescore: int | None = None,
+               lanes: SweepLanes | None = None, cells: bool = True) -> Sweep | None:
     """The complete sweep that senses most before the closed-loop rule turns it home.
 
     ``baseline_xy`` (the lawnmower's route, joined) is scored on the same terms and wins
     when nothing beats it. Ties go to the larger guaranteed (open-loop) area. None when no
-    lane fits.
+    lane fits. ``cells``: the cell sweeps (``cell_candidates``) are candidates too. The
+    ``rescore`` best whole-map sweeps and the ``CELL_RESCORE`` best cell sweeps by the
+    straight-joined score are joined round obstacles and scored again.
     """
     r = ctx.scenario.mission.sensor_radius_m
+    rescore = RESCORE if rescore is None else rescore
     cost = reach.fast
     home_xy = np.asarray(reach.home_xy_m, float)
     if e_left_J is None:
@@ -237,24 +294,50 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
 
     angles = sorted({float(a) % 180.0 for a in angles_deg})
     straight = []
+
+    def add(candidate: _Candidate) -> None:
+        xy = straight_route(home_xy, candidate.pieces)[0]
+        straight.append((rank(score(xy)), candidate))
+
     for angle in angles:
         at = lanes(angle)
         for name, order in lane_orders(at, home_xy).items():
-            pieces = ordered_pieces(at, order, home_xy)
-            straight.append((rank(score(straight_route(home_xy, pieces)[0])), angle, name,
-                             pieces))
+            add(_Candidate(angle, name, ordered_pieces(at, order, home_xy)))
+    if cells:
+        best_whole = max(straight, key=lambda item: item[0])[1].angle_deg if straight else 0.0
+        fewest = best_sweep_angle_deg(ctx.world, r)
+        directions = list(dict.fromkeys(round(a % 180.0, 6) for a in
+                                        (fewest, fewest + 90.0, best_whole)))
+        for candidate in cell_candidates(ctx.world, lanes, home_xy,
+                                         directions[:DECOMPOSITIONS], detours.segments_free):
+            add(candidate)
     tried = len(straight)
-    straight.sort(key=lambda item: item[0], reverse=True)
     joined = []
-    for _, angle, name, pieces in straight[:rescore]:
+    for candidate in _to_rescore(straight, rescore):
         try:
-            xy = join_pieces(home_xy, pieces, detours)[0]
+            xy = join_pieces(home_xy, candidate.pieces, detours)[0]
         except PlanningError:  # its last lane end has no way home on this roadmap
             continue
-        joined.append(Sweep(xy, angle, name, score(xy), tried))
+        joined.append(Sweep(xy, candidate.angle_deg, candidate.order, score(xy), tried,
+                            candidate.cells, candidate.per_cell_angles))
     if baseline_xy is not None:
         joined.append(Sweep(np.asarray(baseline_xy, float), math.nan, "baseline",
                             score(baseline_xy), tried))
     if not joined:
         return None
-    return max(joined, key=lambda s: rank(s.score))
+    rivals = tuple((s.pattern, s.score.closed_m2, s.score.open_m2) for s in joined)
+    return replace(max(joined, key=lambda s: rank(s.score)), rivals=rivals)
+
+
+CELL_RESCORE = 2
+"""Best straight-joined cell sweeps joined round obstacles and scored again (beside the
+``rescore`` best whole-map sweeps)."""
+
+
+def _to_rescore(straight, rescore: int) -> list[_Candidate]:
+    """The ``rescore`` best straight-joined whole-map sweeps and the ``CELL_RESCORE`` best
+    cell sweeps: each kind ranked on its own, so adding the cell sweeps never drops a
+    whole-map sweep that would have been joined."""
+    ranked = [c for _, c in sorted(straight, key=lambda item: item[0], reverse=True)]
+    return ([c for c in ranked if c.cells == 0][:rescore]
+            + [c for c in ranked if c.cells > 0][:CELL_RESCORE])

@@ -222,8 +222,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     plan = _finish(ctx, walk_setup, plan, plan.xy_m[1:-1], variance, start, t0)
     closed_m2 = max(sweep.score.closed_m2, plan.summary["coverage_m2"])
     summary = {**plan.summary,
-               "pattern": f"sweep at {sweep.angle_deg:g} deg, {sweep.order} lane order"
-               if sweep.order != "baseline" else "sweep: the lawnmower's own route",
+               "pattern": sweep.pattern,
                "sweeps_scored": sweep.tried,
                "guaranteed_length_m": cut_m,
                "closed_loop_turn_m": max(sweep.score.closed_s_m, cut_m),
