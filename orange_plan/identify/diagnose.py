@@ -88,7 +88,15 @@ from orange_plan.identify.locate import (
 )
 from orange_plan.model_builder import SURFACE_PREFIX, make_term, mass_exponents, with_payload
 from orange_plan.physics.model import EnergyModel
-from orange_plan.physics.terms import TERMS, aero_drag_feature, spec_id
+from orange_plan.physics.state import MotionState
+from orange_plan.physics.terms import (
+    DRIFT_TAU_S,
+    TERMS,
+    aero_drag_feature,
+    drift_shape_feature,
+    drift_term,
+    spec_id,
+)
 from orange_plan.physics.wind import wind_speed_and_from
 
 MIN_GAIN = 0.02
@@ -119,12 +127,13 @@ sidewalk robot's drag at 1 m/s is a fraction of a watt, and a wind fitted to it 
 heading-dependent fluke (a slope met in one direction) scaled up to gale force."""
 MAX_WIND_MPS = 30.0
 """Largest wind (or water current) a finding may claim [m/s]."""
-SCANNED = {"payload"}
+SCANNED = {"payload", "drift"}
 """Candidates whose change time is the best of a scan over the whole run: the largest of the
 scan's t statistics is itself large, so their t must exceed MIN_T by the scan's typical
 maximum. Neighbouring change times give nearly the same statistic (a standardised CUSUM), so
 that maximum grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff)
-of independent tests: on the null cases the scan's largest t was 1.7-3.2."""
+of independent tests: on the null cases the scan's largest t was 1.7-3.2. A drift's shape is
+the best of its family (``_drift_effect``: a step's time scanned alike)."""
 AS_GOOD_HELD_OUT = "as good held out"
 MASK_EACH_OTHER = "each masks the other"
 """The ``why`` of an ``alternatives`` entry (``_alternatives``)."""
@@ -373,7 +382,46 @@ class Fit:
 
 
 def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
-    """Fit the baseline columns plus the chosen candidates' effects (module docstring)."""
+    """Fit the baseline columns plus the chosen candidates' effects (module docstring); with
+    ``regen`` among them, inside the model (``_fit_with_regen``)."""
+    if any(c.id == "regen" for c in chosen):
+        return _fit_with_regen(d, chosen)
+    return _linear_fit(d, chosen)
+
+
+REGEN_ROUNDS = 4
+"""Gauss-Newton rounds of a fit with ``regen`` inside the model [-]: the efficiency and the
+force coefficients are a product on braking samples, and the clip moves with both."""
+
+
+def _fit_with_regen(d: Design, chosen: list[Candidate]) -> Fit:
+    """A fit with ``regen`` and the chosen terms *inside* the model (``polish``'s
+    Gauss-Newton), so that braking returns ``eff`` of the negative traction power of
+    the model the efficiency joins.
+
+    Why not its linear column next to the others: that column is ``-max(0, -F) v`` at
+    the *baseline's* force, and a scenario without inertia hardly ever brakes (on the BMW i3
+    trips it was zero on every sample: a held-out gain of exactly 0.0 %, t = 0); and an
+    inertia column built at that clip is charged on braking samples in full, i.e. returns
+    100 % of them, which leaves a regeneration nothing to do. Inside the model the clip is
+    the joint force's: braking returns the fitted efficiency, neither 0 nor 100 %.
+
+    Candidates chosen after ``regen`` (a later round's trial) are fitted as columns beside
+    that model, built once per set before them (as every candidate is judged beside the
+    baseline's linearisation)."""
+    at = next(i for i, c in enumerate(chosen) if c.id == "regen") + 1
+    key = ("regen_inside", tuple(c.id for c in chosen[:at]))
+    if key not in d.cache:
+        first = chosen[:at]
+        inside, others, _, owner = _absorb(d, first, _linear_fit(d, first), REGEN_ROUNDS)
+        d.cache[key] = inside, others, owner
+    inside, others, owner = d.cache[key]
+    fit = _linear_fit(inside, [*others, *chosen[at:]])
+    return replace(fit, names=tuple(f"{owner[n]}.{n}" if n in owner else n for n in fit.names))
+
+
+def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
+    """``fit_design`` with every chosen effect as linear columns beside the baseline's."""
     n, p = d.columns.shape
     held = np.zeros(n)
     for f in range(N_FOLDS):
@@ -701,6 +749,81 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     return payload_step(d, t0, sd)
 
 
+DRIFT_TAUS_S = (300.0, 600.0, 1200.0, 2400.0, 4800.0)
+"""Time constants a drift's ``decay`` is tried at [s] (``_drift_effect``)."""
+DRIFT_STEP_TIMES = 37
+"""Change times a drift's ``step`` is tried at, evenly over 5-95 % of the run [-]."""
+
+
+_DRIFT_SHAPES_OF: list = []
+"""The last few recordings' drift families, ``(t_s array, family)``: a design's cache is
+emptied with every Gauss-Newton step of the model, its time axis is not."""
+
+
+def _drift_shapes(d: Design) -> tuple[list[tuple[str, float, float]], np.ndarray]:
+    """The drift family on this recording: ``(shape, tau_s, from_s)`` for a linear change
+    over the run, a decay at each of ``DRIFT_TAUS_S`` and a step at each of
+    ``DRIFT_STEP_TIMES`` times (``physics.terms.drift_shape_feature``), and their columns
+    (n, shapes)."""
+    for t_s, family in _DRIFT_SHAPES_OF:
+        if t_s is d.t_s:
+            return family
+    span = max(float(d.t_s[-1] - d.t_s[0]), 1.0)
+    elapsed = d.t_s - d.t_s[0]
+    state = MotionState(speed_mps=np.ones(d.n), channels={"elapsed_s": elapsed})
+    shapes = [("linear", span, 0.0), *(("decay", tau, 0.0) for tau in DRIFT_TAUS_S),
+              *(("step", span, float(t0)) for t0 in span * np.linspace(0.05, 0.95,
+                                                                        DRIFT_STEP_TIMES))]
+    columns = np.column_stack([np.broadcast_to(np.asarray(
+        drift_shape_feature(*shape)(state)[0], float), (d.n,)) for shape in shapes])
+    _DRIFT_SHAPES_OF[:] = [*_DRIFT_SHAPES_OF[-3:], (d.t_s, (shapes, columns))]
+    return shapes, columns
+
+
+def _drift_effect(d: Design, resid, rows) -> Effect:
+    """A power that changes slowly over the run, of the shape of the drift family
+    (``_drift_shapes``) that the information criterion prefers on the training rows: each
+    shape's column is judged by its part orthogonal to the baseline's columns (what the
+    refitted coefficients could not already take), its fall of the residual sum of squares
+    set against ``ln n_eff`` per non-linear parameter (a decay's time constant, a step's
+    time; BIC with the effective sample count). Either sign: a load that grows through a
+    run (a vessel's ancillary draw, +25 % over it) is a negative decay or a rising line.
+    Without a residual (the power's delay estimate): the cold-start decay."""
+    shapes, columns = _drift_shapes(d)
+    best = (shapes.index(("decay", DRIFT_TAU_S, 0.0)) if resid is None
+            else _best_drift_shape(d, resid, rows, shapes, columns))
+    (shape, tau, t0), col = shapes[best], columns[:, best]
+    extra = ({"drift_from_s": (t0, 0.0)} if shape == "step"
+             else {"drift_span_s" if shape == "linear" else "drift_tau_s": (tau, 0.0)})
+    return Effect(col[:, None], ("drift_W",), np.array([-np.inf]), np.array([np.inf]), extra)
+
+
+def _best_drift_shape(d: Design, resid, rows, shapes, columns) -> int:
+    """The index of the shape with the smallest BIC on ``rows`` (``_drift_effect``)."""
+    x = d.columns[rows]
+    q, _ = np.linalg.qr(x / np.maximum(np.linalg.norm(x, axis=0), 1e-300))
+    c = columns[rows]
+    own = c - q @ (q.T @ c)  # each shape's part the baseline's columns do not span
+    cc = np.einsum("ij,ij->j", own, own)
+    r = resid[rows]
+    tau = autoregressive_inflation(resid, d.samples, INFLATION_BLOCK_S)
+    n_eff = max(rows.sum() / tau, 2.0)
+    spanned = cc <= 1e-9 * np.maximum(np.einsum("ij,ij->j", c, c), 1e-300)  # a constant
+    fall = np.where(spanned, 0.0, (r @ own) ** 2 / np.where(spanned, 1.0, cc))
+    rss = np.maximum(float(r @ r) - fall, 1e-300)
+    nonlinear = np.array([shape[0] != "linear" for shape in shapes], float)
+    return int(np.argmin(n_eff * np.log(rss) + nonlinear * np.log(n_eff)))
+
+
+def _drift_term_of(params: dict):
+    """The ``drift`` term of a finding's shape (its parameters name it)."""
+    if "drift_from_s" in params:
+        return drift_term("step", from_s=params["drift_from_s"])
+    if "drift_span_s" in params:
+        return drift_term("linear", params["drift_span_s"])
+    return drift_term("decay", params.get("drift_tau_s", DRIFT_TAU_S))
+
+
 def payload_step(d: Design, t0: float, sd: float = 0.0) -> Effect:
     """The payload's column for a change at ``t0`` [s] (standard error ``sd``): the power per
     kg of extra mass from then on [W/kg]."""
@@ -876,8 +999,10 @@ def _needs_wind(d: Design):
 
 
 def _needs_braking(d: Design):
+    """Braking in the model, or decelerations a missing inertia would make braking."""
     force = np.asarray(d.base.traction_force_N(d.state))
-    return None if np.any(force < 0) else "the traction force never goes negative"
+    slows = "inertia" not in d.base.term_ids and np.any(np.asarray(d.state.accel_mps2) < 0)
+    return None if np.any(force < 0) or slows else "the traction force never goes negative"
 
 
 def _feature(values_of: Callable, label: str):
@@ -924,8 +1049,8 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
 
 def candidates() -> list[Candidate]:
     """Every candidate diagnosis tries (module docstring)."""
-    out = [Candidate(t, _applies_term(t, _NEEDS.get(t)),
-                     _surface_effect if t == "surface_rolling" else _term_effect(t),
+    special = {"surface_rolling": _surface_effect, "drift": _drift_effect}
+    out = [Candidate(t, _applies_term(t, _NEEDS.get(t)), special.get(t) or _term_effect(t),
                      _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]
     out.append(Candidate("payload", _needs_mass, _payload_effect, _feature(*_FEATURES["payload"])))
     out.append(Candidate("wind", _needs_wind, _wind_effect, _feature(*_FEATURES["wind"])))
@@ -1370,7 +1495,8 @@ def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3):
     model, the chosen effects that stay candidates, the fit, term coefficient -> candidate
     id). With no term among ``chosen``: (d, chosen, fit, {})."""
     # hover stays a candidate: its column is zero on landed samples, its term is not
-    inside = [c for c in chosen if (c.id in TERMS and c.id != "hover") or c.id == "surface_rolling"]
+    inside = [c for c in chosen if (c.id in TERMS and c.id not in ("hover", "drift"))
+              or c.id == "surface_rolling"]
     if not inside:
         return d, list(chosen), fit, {}
     others = [c for c in chosen if c not in inside]
@@ -1607,7 +1733,7 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
             changes["environment.wind_speed_mps"] = float(speed)
             changes["environment.wind_from_deg"] = float(from_deg) % 360.0
         else:
-            term = make_term(cand.id, names)
+            term = _drift_term_of(own) if cand.id == "drift" else make_term(cand.id, names)
             # surface_rolling stands right after rolling (model_builder's order)
             at = [t.id for t in terms].index("rolling") + 1 if term.id == "surface_rolling" \
                 else len(terms)
