@@ -128,11 +128,12 @@ def suite():
 
 def test_suite_covers_every_term_pair_and_null(suite):
     assert tuple(RECIPES) == CONCEALABLE
-    expected = {*CONCEALABLE, *("+".join(p) for p in PAIRS), "null-ground", "null-aerial"}
+    expected = {*CONCEALABLE, *("+".join(p) for p in PAIRS), "drift-marine", "null-ground",
+                "null-aerial", "null-marine"}
     assert set(suite) == expected
     for name, case in suite.items():
         assert case.name == f"{name}/seed7"
-        assert case.kind in ("ground", "aerial")
+        assert case.kind in ("ground", "aerial", "marine")
         assert abs(case.recording.duration_s - DURATION_S) < 0.05 * DURATION_S, name
 
 
@@ -159,7 +160,7 @@ def test_pair_effects_present_and_explained(suite, pair):
         assert energies(alone)[4] > 1.05 * rmse_done, (pair, term)
 
 
-@pytest.mark.parametrize("kind", ["ground", "aerial"])
+@pytest.mark.parametrize("kind", ["ground", "aerial", "marine"])
 def test_null_cases_conceal_nothing(suite, kind):
     case = suite[f"null-{kind}"]
     assert case.truth == {}
@@ -280,7 +281,8 @@ def test_terms_on_their_other_kind(term, kind):
     (["turnig"], {}, "did you mean 'turning'"),
     (["hover"], {"kind": "ground"}, "cannot be concealed on a ground robot"),
     (["drift", "drift"], {}, "at most two different ids"),
-    (["drift"], {"kind": "marine"}, "must be 'ground' or 'aerial'"),
+    (["drift"], {"kind": "submarine"}, "must be one of ground, aerial, marine"),
+    (["rolling"], {"kind": "marine"}, "cannot be concealed on a marine robot"),
     (["drift"], {"duration_s": 10.0}, "at least 60 s"),
     (["drift"], {"rate_Hz": 0.0}, "rate_Hz"),
 ])

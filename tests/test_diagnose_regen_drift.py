@@ -158,3 +158,43 @@ def test_bmw_trip_regen_named_with_an_efficiency_and_a_gain_over_inertia():
     both = fit_design(d, [pool["inertia"], pool["regen"]])
     assert 1.0 - both.cv_rmse_W / alone.cv_rmse_W >= 0.20
     assert not math.isnan(both.cv_rmse_W)
+
+
+def test_bench_real_without_trips_is_one_line_exit_2(tmp_path):
+    from conftest import run_cli
+
+    code, _, stderr = run_cli("bench", "diagnose", "--real", str(tmp_path))
+    assert code == 2 and "no BMW i3 trip" in stderr and "Traceback" not in stderr
+
+
+def test_a_drift_shape_is_written_and_read_back(tmp_path):
+    """``diagnose -o`` keeps the shape: the written scenario rebuilds the same drift power."""
+    from orange_plan.context import load_context
+    from orange_plan.identify.scenario_out import write_calibrated_scenario
+    from orange_plan.model_builder import model_with_terms
+
+    root = Path(__file__).resolve().parents[1]
+    ctx = load_context(root / "scenarios" / "marine_survey.toml")
+    base = model_with_terms(ctx, [*ctx.model.term_ids])
+    shaped = base.with_terms([*base.terms, drift_term("step", 1800.0, 700.0)],
+                             {"drift_W": -4.0})
+    path = write_calibrated_scenario(ctx.scenario, shaped, tmp_path / "out.toml")
+    again = load_context(path).model
+    state = MotionState(speed_mps=np.ones(3), channels={"elapsed_s": np.array([0, 699, 701.0])})
+    assert np.asarray(again.power_W(state)) == pytest.approx(np.asarray(shaped.power_W(state)))
+    assert float(again.power_W(state)[2] - again.power_W(state)[1]) == pytest.approx(-4.0)
+
+
+def test_a_drift_shape_without_the_drift_term_is_refused(tmp_path):
+    from orange_plan.errors import InputError
+    from orange_plan.scenario import load_scenario
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "scenarios" / "marine_survey.toml").read_text()
+    path = tmp_path / "s.toml"
+    path.write_text(text.replace('name = "marine_survey"', 'name = "marine_survey"\nmap = "'
+                                 + str(root / "maps" / "survey_bay.geojson") + '"', 1)
+                    .replace('map = "../maps/survey_bay.geojson"\n', "", 1)
+                    + '\n[model]\ndrift_shape = "linear"\n')
+    with pytest.raises(InputError, match="needs 'drift' in model.terms"):
+        load_scenario(path)

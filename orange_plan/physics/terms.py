@@ -57,6 +57,7 @@ class Term:
     feature : ``feature(state) -> tuple`` of one feature per coefficient
     description : one line for the README and reports
     channels : the ``MotionState.channels`` the feature reads (beyond the motion fields)
+    shape : a ``drift``'s ``(shape, tau_s, from_s)`` (``drift_term``); () for every other term
     """
 
     id: str
@@ -65,6 +66,7 @@ class Term:
     feature: Callable[[MotionState], tuple]
     description: str
     channels: tuple[Channel, ...] = ()
+    shape: tuple = ()
 
     def features(self, state: MotionState) -> tuple:
         """Feature values ``phi`` (one per coefficient) at ``state``."""
@@ -269,7 +271,7 @@ def drift_term(shape: str = "decay", tau_s: float = DRIFT_TAU_S, from_s: float =
     decay."""
     return Term("drift", "power", ("drift_W",), drift_shape_feature(shape, tau_s, from_s),
                 f"a power changing over mission time ({shape}, tau {tau_s:g} s, from {from_s:g} s)",
-                (ELAPSED_S,))
+                (ELAPSED_S,), (shape, float(tau_s), float(from_s)))
 
 
 HVAC_SETPOINT_C = 20.0
@@ -345,7 +347,7 @@ TERMS: dict[str, Term] = {
              (HEATER_REQUEST_W,)),
         Term("drift", "power", ("drift_W",), drift_feature,
              "extra power at a cold start, decaying with time constant DRIFT_TAU_S",
-             (ELAPSED_S,)),
+             (ELAPSED_S,), ("decay", DRIFT_TAU_S, 0.0)),
         Term("hvac_ambient", "power", ("hvac_heat_W_per_K", "hvac_cool_W_per_K"),
              hvac_ambient_feature,
              "heating / cooling power following the ambient temperature (no HVAC meter)",
