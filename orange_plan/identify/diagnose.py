@@ -800,16 +800,21 @@ def _drift_effect(d: Design, resid, rows) -> Effect:
 
 def _best_drift_shape(d: Design, resid, rows, shapes, columns) -> int:
     """The index of the shape with the smallest BIC on ``rows`` (``_drift_effect``)."""
-    x = d.columns[rows]
-    q, _ = np.linalg.qr(x / np.maximum(np.linalg.norm(x, axis=0), 1e-300))
-    c = columns[rows]
-    own = c - q @ (q.T @ c)  # each shape's part the baseline's columns do not span
-    cc = np.einsum("ij,ij->j", own, own)
+    key = ("drift_projection", hash(np.packbits(rows).tobytes()))
+    if key not in d.cache:  # the same for every residual on these rows: built once
+        x = d.columns[rows]
+        q, _ = np.linalg.qr(x / np.maximum(np.linalg.norm(x, axis=0), 1e-300))
+        c = columns[rows]
+        own = c - q @ (q.T @ c)  # each shape's part the baseline's columns do not span
+        cc = np.einsum("ij,ij->j", own, own)
+        spanned = cc <= 1e-9 * np.maximum(np.einsum("ij,ij->j", c, c), 1e-300)  # a constant
+        # the autocorrelation time of the first residual seen (the baseline's): BIC's
+        # effective sample count, the same for every shape compared
+        tau = autoregressive_inflation(resid, d.samples, INFLATION_BLOCK_S)
+        d.cache[key] = own, np.where(spanned, np.inf, cc), max(rows.sum() / tau, 2.0)
+    own, cc, n_eff = d.cache[key]
     r = resid[rows]
-    tau = autoregressive_inflation(resid, d.samples, INFLATION_BLOCK_S)
-    n_eff = max(rows.sum() / tau, 2.0)
-    spanned = cc <= 1e-9 * np.maximum(np.einsum("ij,ij->j", c, c), 1e-300)  # a constant
-    fall = np.where(spanned, 0.0, (r @ own) ** 2 / np.where(spanned, 1.0, cc))
+    fall = (r @ own) ** 2 / cc
     rss = np.maximum(float(r @ r) - fall, 1e-300)
     nonlinear = np.array([shape[0] != "linear" for shape in shapes], float)
     return int(np.argmin(n_eff * np.log(rss) + nonlinear * np.log(n_eff)))
@@ -999,9 +1004,11 @@ def _needs_wind(d: Design):
 
 
 def _needs_braking(d: Design):
-    """Braking in the model, or decelerations a missing inertia would make braking."""
+    """Braking in the model, or a wheeled robot's decelerations that a missing inertia would
+    make braking (a car's road-load model brakes only downhill)."""
     force = np.asarray(d.base.traction_force_N(d.state))
-    slows = "inertia" not in d.base.term_ids and np.any(np.asarray(d.state.accel_mps2) < 0)
+    slows = (d.scenario.robot.kind == "ground" and "inertia" not in d.base.term_ids
+             and np.any(np.asarray(d.state.accel_mps2) < 0))
     return None if np.any(force < 0) or slows else "the traction force never goes negative"
 
 
