@@ -42,8 +42,9 @@ class RegenRow:
         return asdict(self)
 
 
-def bmw_regen(data_dir: str | Path, scenario_path: str | Path) -> list[RegenRow]:
-    """Diagnose every BMW i3 trip under ``data_dir`` (module docstring).
+def bmw_regen(data_dir: str | Path, scenario_path: str | Path,
+              pattern: str = TRIPS) -> list[RegenRow]:
+    """Diagnose every BMW i3 trip under ``data_dir`` matching ``pattern`` (module docstring).
 
     Raises
     ------
@@ -55,9 +56,9 @@ def bmw_regen(data_dir: str | Path, scenario_path: str | Path) -> list[RegenRow]
     from orange_plan.identify.diagnose import candidates, diagnose, fit_design, polish
     from orange_plan.model_builder import model_with_terms
 
-    runs = load_runs(data_dir, "tum_bmw_i3", TRIPS)
+    runs = load_runs(data_dir, "tum_bmw_i3", pattern)
     if not runs:
-        raise InputError(f"no BMW i3 trip ({TRIPS}) under {data_dir}")
+        raise InputError(f"no BMW i3 trip ({pattern}) under {data_dir}")
     ctx = load_context(scenario_path)
     ctx = replace(ctx, model=model_with_terms(
         ctx, [t for t in ctx.model.term_ids if t not in REMOVED]))

@@ -17,7 +17,10 @@ How it is solved. Every term is linear in its coefficients once the no-recovery 
 at the baseline's mask (``EnergyModel.power_jacobian``): the baseline's columns ``J`` and a
 candidate's columns ``C`` (its ``power_jacobian`` columns at coefficient 0, or, for effects
 that are not a term, a payload step or a wind vector, columns built here) form one linear
-design. Forward selection: each round, every candidate not yet chosen is refitted *together
+design. The exception is ``regen``, whose column is the negative part of the force of the
+model it joins: a fit with it puts the chosen terms inside the model (``_fit_with_regen``).
+A ``drift`` is a family of shapes of time, the shape chosen by BIC (``_drift_effect``).
+Forward selection: each round, every candidate not yet chosen is refitted *together
 with* the baseline terms (bounded least squares: coefficients keep their physical sign) on
 blocked folds (interleaved time blocks: residuals are autocorrelated, so a fit judged on
 neighbouring samples would look better than it is) and judged on the held-out blocks. The
