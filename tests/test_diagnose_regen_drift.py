@@ -196,5 +196,5 @@ def test_a_drift_shape_without_the_drift_term_is_refused(tmp_path):
                                  + str(root / "maps" / "survey_bay.geojson") + '"', 1)
                     .replace('map = "../maps/survey_bay.geojson"\n', "", 1)
                     + '\n[model]\ndrift_shape = "linear"\n')
-    with pytest.raises(InputError, match="needs 'drift' in model.terms"):
+    with pytest.raises(InputError, match=r"needs 'drift' in model\.terms"):
         load_scenario(path)
