@@ -24,6 +24,7 @@ from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.examples import examples_dir
 from orange_plan.model_builder import model_with_terms
+from orange_plan.physics.terms import drift_term
 from orange_plan.physics.wind import wind_xy_mps
 from orange_plan.sim.concealed import (
     CONCEALABLE,
@@ -73,8 +74,16 @@ def completed_powers(case):
     seen_W = np.asarray(ctx.model.power_W(state), float)
     in_model = [t for t in MODEL_TERMS if t in truth]
     ids = [*ctx.model.term_ids, *(t for t in in_model if not ctx.model.has(t))]
-    model = model_with_terms(ctx, ids).with_theta(
-        {k: v for t in in_model for k, v in truth[t].items()})
+    model = model_with_terms(ctx, ids)
+    shape = truth.get("drift", {})
+    if {"drift_tau_s", "drift_span_s", "drift_from_s"} & set(shape):  # a marine trend's shape
+        drift = drift_term("step" if "drift_from_s" in shape else
+                           "linear" if "drift_span_s" in shape else "decay",
+                           shape.get("drift_tau_s", shape.get("drift_span_s", 1.0)),
+                           shape.get("drift_from_s", 0.0))
+        model = model.with_terms([drift if t.id == "drift" else t for t in model.terms], {})
+    model = model.with_theta({k: v for t in in_model for k, v in truth[t].items()
+                              if k in model.names})
     if "wind" in truth:
         wx, wy = wind_xy_mps(truth["wind"]["wind_speed_mps"], truth["wind"]["wind_from_deg"])
         state = state.with_(wind_x_mps=wx + 0 * state.speed_mps, wind_y_mps=wy + 0 * state.speed_mps)
