@@ -6,7 +6,9 @@ diagnosis (``ConcealedCase.ctx``) leaves them out and no column of the recording
 Null cases conceal nothing (the scenario may still have a mis-set coefficient of a term it
 already has). Ground cases drive the Kiwibot on the hilly campus
 (``scenarios/kiwibot_campus.toml``), aerial ones fly the AR.Drone over its field
-(``scenarios/ar_drone_wind.toml``, battery enlarged to last the run).
+(``scenarios/ar_drone_wind.toml``, battery enlarged to last the run), marine ones sail the
+survey boat in its bay (``scenarios/marine_survey.toml``: a drift, as a load that rises or
+falls through the run, ``_drift_trend``, and a null case whose drag is mis-set).
 
 How a case is made
 ------------------
@@ -129,7 +131,7 @@ class ConcealedCase:
     Attributes
     ----------
     name : ``"turning/seed3"``, ``"wind+payload/seed1"``, ``"null-ground/seed2"``
-    kind : ``"ground"`` or ``"aerial"``
+    kind : ``"ground"``, ``"aerial"`` or ``"marine"``
     ctx : the scenario as diagnosis sees it: its model lacks the concealed effect(s)
     recording : the recording cleaned by telemetry's normal reading path
     frame : the same as a SPEC §3 table (what ``write`` puts in the CSV)
@@ -658,7 +660,8 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
     ----------
     terms : concealed term ids (``CONCEALABLE``), one or two; empty: a null case
     seed : random seed; the same (terms, seed, kind, duration, rate) give the same case
-    kind : ``"ground"`` or ``"aerial"``; None: the terms' default (``KINDS``), ground for nulls
+    kind : ``"ground"``, ``"aerial"`` or ``"marine"``; None: the terms' default (``KINDS``),
+        ground for nulls
     duration_s : length of the run [s] (at least 60)
     rate_Hz : recording rate [Hz]
 
