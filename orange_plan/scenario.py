@@ -202,6 +202,9 @@ class ModelSpec:
     stderr: Mapping[str, float] = field(default_factory=dict)
     prior_relative_stderr: float = DEFAULT_PRIOR_RELATIVE_STDERR
     discrepancy_rel_sd: float = DEFAULT_DISCREPANCY_REL_SD
+    drift: tuple = ()
+    """The ``drift`` term's ``(shape, tau_s, from_s)`` (``physics.terms.drift_term``); ()
+    for the vocabulary's cold-start decay."""
 
 
 @dataclass(frozen=True)
@@ -427,8 +430,9 @@ def _model_spec(table, where: str) -> ModelSpec:
     coefficients, stderr = {}, {}
     fractions = {"prior_relative_stderr": DEFAULT_PRIOR_RELATIVE_STDERR,
                  "discrepancy_rel_sd": DEFAULT_DISCREPANCY_REL_SD}
+    drift = _drift_spec(table, terms, where)
     for key, value in table.items():
-        if key == "terms":
+        if key == "terms" or key in DRIFT_KEYS:
             continue
         if key in fractions:
             fractions[key] = _number(value, f"model.{key}", where)
@@ -446,4 +450,30 @@ def _model_spec(table, where: str) -> ModelSpec:
         else:
             options = set(allowed_coefs) | {"terms", "stderr", *fractions}
             raise ScenarioError(f"{where}: unknown key 'model.{key}'" + close_match_hint(key, options))
-    return ModelSpec(tuple(terms), coefficients, stderr, **fractions)
+    return ModelSpec(tuple(terms), coefficients, stderr, **fractions, drift=drift)
+
+
+DRIFT_KEYS = ("drift_shape", "drift_tau_s", "drift_from_s")
+"""[model] keys of the drift term's shape (``physics.terms.drift_term``)."""
+
+
+def _drift_spec(table, terms, where: str) -> tuple:
+    """``(shape, tau_s, from_s)`` of the drift term from [model] ``drift_shape`` (decay,
+    linear or step), ``drift_tau_s`` (> 0) and ``drift_from_s`` (>= 0); () when none is given."""
+    from orange_plan.physics.terms import DRIFT_SHAPES, DRIFT_TAU_S
+
+    given = [k for k in DRIFT_KEYS if k in table]
+    if not given:
+        return ()
+    if "drift" not in terms:
+        raise ScenarioError(f"{where}: model.{given[0]} needs 'drift' in model.terms")
+    shape = table.get("drift_shape", "decay")
+    if shape not in DRIFT_SHAPES:
+        raise ScenarioError(f"{where}: model.drift_shape = {shape!r} must be one of "
+                            f"{', '.join(DRIFT_SHAPES)}")
+    tau = _number(table.get("drift_tau_s", DRIFT_TAU_S), "model.drift_tau_s", where)
+    start = _number(table.get("drift_from_s", 0.0), "model.drift_from_s", where)
+    if not (tau > 0 and start >= 0):
+        raise ScenarioError(f"{where}: model.drift_tau_s must be > 0 and model.drift_from_s "
+                            ">= 0")
+    return (shape, tau, start)

@@ -24,6 +24,7 @@ from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.examples import examples_dir
 from orange_plan.physics.model_builder import model_with_terms
+from orange_plan.physics.terms import drift_term
 from orange_plan.physics.wind import wind_xy_mps
 from orange_plan.sim.concealed import (
     CONCEALABLE,
@@ -77,8 +78,16 @@ def completed_powers(case):
                                 grade_window_m=GRADE_WINDOW_M)
     in_model = [t for t in MODEL_TERMS if t in truth]
     ids = [*ctx.model.term_ids, *(t for t in in_model if not ctx.model.has(t))]
-    model = model_with_terms(ctx, ids).with_theta(
-        {k: v for t in in_model for k, v in truth[t].items()})
+    model = model_with_terms(ctx, ids)
+    shape = truth.get("drift", {})
+    if {"drift_tau_s", "drift_span_s", "drift_from_s"} & set(shape):  # a marine trend's shape
+        drift = drift_term("step" if "drift_from_s" in shape else
+                           "linear" if "drift_span_s" in shape else "decay",
+                           shape.get("drift_tau_s", shape.get("drift_span_s", 1.0)),
+                           shape.get("drift_from_s", 0.0))
+        model = model.with_terms([drift if t.id == "drift" else t for t in model.terms], {})
+    model = model.with_theta({k: v for t in in_model for k, v in truth[t].items()
+                              if k in model.names})
     if "wind" in truth:
         wx, wy = wind_xy_mps(truth["wind"]["wind_speed_mps"], truth["wind"]["wind_from_deg"])
         state = state.with_(wind_x_mps=wx + 0 * state.speed_mps, wind_y_mps=wy + 0 * state.speed_mps)
@@ -147,12 +156,12 @@ def suite():
 
 def test_suite_covers_every_term_pair_and_null(suite):
     assert tuple(RECIPES) == CONCEALABLE
-    expected = {*CONCEALABLE, *("+".join(p) for p in PAIRS), "null-ground", "null-aerial",
-                "null-ground-labels"}
+    expected = {*CONCEALABLE, *("+".join(p) for p in PAIRS), "drift-marine", "null-ground",
+                "null-aerial", "null-marine", "null-ground-labels"}
     assert set(suite) == expected
     for name, case in suite.items():
         assert case.name == f"{name}/seed7"
-        assert case.kind in ("ground", "aerial")
+        assert case.kind in ("ground", "aerial", "marine")
         assert abs(case.recording.duration_s - DURATION_S) < 0.05 * DURATION_S, name
 
 
@@ -179,7 +188,7 @@ def test_pair_effects_present_and_explained(suite, pair):
         assert energies(alone)[4] > 1.05 * rmse_done, (pair, term)
 
 
-@pytest.mark.parametrize("kind", ["ground", "aerial"])
+@pytest.mark.parametrize("kind", ["ground", "aerial", "marine"])
 def test_null_cases_conceal_nothing(suite, kind):
     case = suite[f"null-{kind}"]
     assert case.truth == {}
@@ -305,7 +314,8 @@ def test_terms_on_their_other_kind(term, kind):
     (["turnig"], {}, "did you mean 'turning'"),
     (["hover"], {"kind": "ground"}, "cannot be concealed on a ground robot"),
     (["drift", "drift"], {}, "at most two different ids"),
-    (["drift"], {"kind": "marine"}, "must be 'ground' or 'aerial'"),
+    (["drift"], {"kind": "submarine"}, "must be one of ground, aerial, marine"),
+    (["rolling"], {"kind": "marine"}, "cannot be concealed on a marine robot"),
     (["drift"], {"duration_s": 10.0}, "at least 60 s"),
     (["drift"], {"rate_Hz": 0.0}, "rate_Hz"),
 ])

@@ -166,7 +166,7 @@ def recovered_params(result, truth: dict) -> list[dict]:
             if concealed_id(term) != finding.term:
                 continue
             for name, true in params.items():
-                if name in finding.params:
+                if name in finding.params and _comparable(name, params, finding):
                     value, sd = finding.params[name], finding.stderr.get(name, float("nan"))
                     if name == "wind_from_deg":  # an angle: the shorter way round
                         diff = (value - true + 180.0) % 360.0 - 180.0
@@ -177,6 +177,22 @@ def recovered_params(result, truth: dict) -> list[dict]:
                                 "z": abs(diff) / sd if sd > 0 else float("inf"),
                                 "rel_error": abs(diff) / abs(true) if true else float("nan")})
     return out
+
+
+DRIFT_SHAPE_KEYS = ("drift_tau_s", "drift_span_s", "drift_from_s")
+"""A drift's shape parameter: which one a finding or a truth carries names its shape."""
+
+
+def _comparable(name: str, truth: dict, finding) -> bool:
+    """Whether a true parameter can be set against the finding's: a drift's size only when
+    the finding has the true shape (a line's W per run and a decay's W at the start are not
+    one quantity), and a shape parameter chosen from a grid (no standard error) never."""
+    if name in DRIFT_SHAPE_KEYS:
+        return finding.stderr.get(name, 0.0) > 0
+    if name == "drift_W":
+        true_shape = next((k for k in DRIFT_SHAPE_KEYS if k in truth), "drift_tau_s")
+        return true_shape in finding.params
+    return True
 
 
 def sparse_regression(case) -> tuple[list[str], float]:

@@ -18,16 +18,22 @@ RateOpt = Annotated[float, typer.Option("--rate-hz", help="Recording rate [Hz]."
 OnlyOpt = Annotated[str | None, typer.Option(
     "--only", help="Comma-separated case names to keep (e.g. turning,null-ground).")]
 CsvOpt = Annotated[Path | None, typer.Option("--csv", help="Write the per-case rows here.")]
+RealOpt = Annotated[Path | None, typer.Option(
+    "--real", help="Instead of the generated cases: the BMW i3 trips under this data folder "
+                   "(tum_bmw_i3/Trip*.csv.gz), diagnosed without inertia and regen.")]
 
 
 @bench_app.command("diagnose")
 @handles_errors
 def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt = 1800.0,
                        rate_hz: RateOpt = 10.0, only: OnlyOpt = None, csv: CsvOpt = None,
-                       as_json: JsonOpt = False) -> None:
+                       real: RealOpt = None, as_json: JsonOpt = False) -> None:
     """Concealed-effect cases: terms found, false positives, held-out RMSE and seconds of
-    the diagnosis and of a LassoCV sparse regression over the same candidate features
-    (targets)."""
+    the diagnosis and of a LassoCV sparse regression over the same candidate features;
+    with --real, regeneration on the BMW i3 trips."""
+    if real is not None:
+        _real_trips(real, as_json)
+        return
     from orange_plan.bench.diagnose import compare, summarise
     from orange_plan.errors import InputError
     from orange_plan.files import check_output
@@ -65,6 +71,27 @@ def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt 
         return
     out.print(_summary_table(summary))
     out.print(_rows_table(rows))
+
+
+def _real_trips(data_dir: Path, as_json: bool) -> None:
+    """``--real``: each BMW i3 trip with the regeneration diagnosis found."""
+    from orange_plan.bench.diagnose_real import bmw_regen
+    from orange_plan.examples import examples_dir
+
+    rows = bmw_regen(data_dir, examples_dir("scenarios", "--scenarios") / "bmw_i3.toml")
+    if as_json:
+        print_json({"rows": [r.to_dict() for r in rows]})
+        return
+    table = Table(title="BMW i3 trips, scenario without inertia and regen", header_style="bold")
+    for col in ("trip", "found", "regen efficiency", "held-out RMSE [W] inertia / + regen",
+                "gain", "seconds"):
+        table.add_column(col)
+    for r in rows:
+        table.add_row(r.trip, ",".join(r.found) or "-",
+                      f"{r.regen_efficiency:.2f} +- {r.regen_efficiency_sd:.2f}",
+                      f"{r.inertia_holdout_rmse_W:.0f} / {r.inertia_regen_holdout_rmse_W:.0f}",
+                      f"{r.regen_gain_pct:.1f} %", f"{r.seconds:.1f}")
+    out.print(table)
 
 
 def _summary_table(summary: dict) -> Table:

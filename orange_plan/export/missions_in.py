@@ -46,8 +46,8 @@ from orange_plan.export.autopilot import (
     MissionItem,
     latlon_to_xy,
 )
-from orange_plan.limits import MAX_MISSION_WAYPOINTS
 from orange_plan.files import csv_delimiter_hint, read_json, require_file
+from orange_plan.limits import MAX_MISSION_WAYPOINTS
 
 NAV_LAND, NAV_LOITER_TIME = 21, 19
 PASSIVE_COMMANDS = {

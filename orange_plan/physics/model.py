@@ -46,15 +46,19 @@ class EnergyModel:
     terms : the terms, in order; a switched-off term is simply absent
     theta : coefficient values by name (every coefficient of every term)
     cov : covariance of the coefficients in ``names`` order; default zeros
-    omega : manoeuvring efficiency Omega (needed by ``regen`` only) [-]
+    omega : manoeuvring efficiency Omega (kept for reports; the lumped coefficients carry it,
+        and ``regen`` does not use it) [-]
     discrepancy_rel_sd : run-to-run (model discrepancy) standard deviation of a whole run's
         energy, relative to the predicted energy [-]: what the same motion draws differently
         from run to run beyond what any coefficient values explain; default 0
 
     Notes
     -----
-    Time domain: ``P = sum_power theta phi + max(0, F) v - r Omega^2 max(0, -F) v
-    + sum_rate theta |yaw rate|`` with ``F = sum_force theta phi`` the lumped traction force.
+    Time domain: ``P = sum_power theta phi + max(0, F) v - eff max(0, -F) v
+    + sum_rate theta |yaw rate|`` with ``F = sum_force theta phi`` the lumped traction force
+    (positive when the motors drive) and ``eff`` the ``regen`` efficiency (0 without it):
+    with ``P_mech = F v`` the traction power, braking returns ``P_regen = -eff max(0,
+    -P_mech)``, the same form in the time domain, on a path and in the speed optimiser.
     Path domain: a step of length L at speed v costs ``P_power L / (v D)
     + max(0, F) L + theta_turn |heading change|``.
     Predictive variance of a run's energy E with gradient g = dE/dtheta:
@@ -156,15 +160,18 @@ class EnergyModel:
         return total
 
     def regen_fraction(self, theta=None) -> float:
-        """Share r of negative lumped traction work that returns to the battery [-]
-        (``eff Omega^2``; 0 without a ``regen`` term)."""
+        """Share r of the negative traction power ``F v`` that returns to the battery [-]: the
+        ``regen_efficiency`` itself (0 without a ``regen`` term).
+
+        Why not a further ``Omega^2`` (the drivetrain passed twice): the lumped force already
+        carries an Omega that only the fit knows (``inertia_kg = m / Omega``), so an assumed
+        one makes the efficiency a product with a guess; on the BMW i3 trips it then had to
+        exceed 1 (1.02-1.08), held at its bound. As the share of the model's own negative
+        traction power it is what a recording identifies (0.6-0.8 on those trips)."""
         if not self.has("regen"):
             return 0.0
         theta = self.theta if theta is None else theta
-        eff = theta[self.names.index("regen_efficiency")]
-        # The lumped force is F_mech / Omega; energy flowing back passes motor and drivetrain
-        # in reverse, hence Omega^2 between lumped negative work and battery energy.
-        return eff * self.omega**2
+        return theta[self.names.index("regen_efficiency")]
 
     def ancillary_power_W(self, state: MotionState, theta=None):
         """Sum of the ``power`` terms at ``state`` [W] (P_anc, Eq. 10)."""
@@ -278,8 +285,8 @@ class EnergyModel:
             elif term.group == "force":
                 regen = self.regen_fraction()
                 columns += [np.where(moving_on, p * speed, regen * p * speed) for p in phis]
-            elif term.group == "regen":  # d/d(eff) of -eff Omega^2 max(0, -F) v
-                columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * speed)
+            elif term.group == "regen":  # d/d(eff) of -eff max(0, -F) v
+                columns.append(-np.maximum(-force, 0.0) * speed)
             else:  # battery: filled in below, once the load power is known
                 columns += [None] * len(phis)
         return self._with_battery_loss(state, columns, shape,
@@ -327,8 +334,8 @@ class EnergyModel:
                     columns.append(phi)
                 elif term.group == "force":
                     columns.append(np.where(force > 0, phi * length, regen * phi * length))
-                elif term.group == "regen":  # recovered energy is -eff Omega^2 max(0, -F) L
-                    columns.append(-(self.omega**2) * np.maximum(-force, 0.0) * length)
+                elif term.group == "regen":  # recovered energy is -eff max(0, -F) L
+                    columns.append(-np.maximum(-force, 0.0) * length)
                 else:  # battery: filled in below
                     columns.append(None)
         if not self._has_group("battery"):

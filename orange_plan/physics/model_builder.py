@@ -28,6 +28,7 @@ from orange_plan.physics.terms import (
     REFERENCE_TERM_IDS,
     TERMS,
     Term,
+    drift_term,
     surface_rolling_term,
 )
 
@@ -250,7 +251,8 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
     ids = reference_term_ids(scenario) + [t for t in extras if t != "surface_rolling"]
     if "surface_rolling" in extras and surface_names:
         ids.insert(ids.index("rolling") + 1 if "rolling" in ids else 1, "surface_rolling")
-    terms = [make_term(t, surface_names) for t in ids]
+    terms = [drift_term(*spec.drift) if t == "drift" and spec.drift else make_term(t, surface_names)
+             for t in ids]
     theta = {name: spec.coefficients.get(name, reference_value(name, scenario))
              for term in terms for name in term.coefficients}
     unknown = [n for n in spec.stderr if n not in theta]

@@ -57,6 +57,7 @@ class Term:
     feature : ``feature(state) -> tuple`` of one feature per coefficient
     description : one line for the README and reports
     channels : the ``MotionState.channels`` the feature reads (beyond the motion fields)
+    shape : a ``drift``'s ``(shape, tau_s, from_s)`` (``drift_term``); () for every other term
     """
 
     id: str
@@ -65,6 +66,7 @@ class Term:
     feature: Callable[[MotionState], tuple]
     description: str
     channels: tuple[Channel, ...] = ()
+    shape: tuple = ()
 
     def features(self, state: MotionState) -> tuple:
         """Feature values ``phi`` (one per coefficient) at ``state``."""
@@ -231,6 +233,47 @@ def drift_feature(state: MotionState):
     return (_per_sample(ops.exp(-state.channel(ELAPSED_S.name) / DRIFT_TAU_S), state),)
 
 
+DRIFT_SHAPES = ("decay", "linear", "step")
+"""Shapes of a slow change of a power over mission time t (``drift_shape_feature``):
+``decay`` ``exp(-t / tau)`` (a cold start settling; with a negative ``drift_W`` a rise that
+levels off), ``linear`` ``t / tau`` (a steady rise or fall, ``drift_W`` per ``tau``), ``step``
+``[t >= t0]`` (a load switched on or off at ``t0``)."""
+
+
+def drift_shape_feature(shape: str, tau_s: float = DRIFT_TAU_S, from_s: float = 0.0):
+    """The feature of a drift of ``shape`` (``DRIFT_SHAPES``): a function of the state [-].
+
+    Parameters
+    ----------
+    shape : ``"decay"``, ``"linear"`` or ``"step"``
+    tau_s : time constant of ``decay``, time scale of ``linear`` (the change per ``tau_s``) [s]
+    from_s : time of a ``step`` [s] (it rises over one second, so CasADi can differentiate it)
+    """
+    if shape not in DRIFT_SHAPES:
+        raise ValueError(f"drift shape {shape!r} is not one of {DRIFT_SHAPES}")
+
+    def feature(state: MotionState):
+        t = state.channel(ELAPSED_S.name)
+        if shape == "decay":
+            value = ops.exp(-t / tau_s)
+        elif shape == "linear":
+            value = t / tau_s
+        else:
+            value = ops.fmin(ops.fmax(t - from_s + 0.5, 0.0), 1.0)
+        return (_per_sample(value, state),)
+
+    return feature
+
+
+def drift_term(shape: str = "decay", tau_s: float = DRIFT_TAU_S, from_s: float = 0.0) -> Term:
+    """The ``drift`` term of one shape (``drift_shape_feature``); coefficient ``drift_W`` [W]
+    (either sign: a power that rises or falls). ``drift_term()`` is the vocabulary's cold-start
+    decay."""
+    return Term("drift", "power", ("drift_W",), drift_shape_feature(shape, tau_s, from_s),
+                f"a power changing over mission time ({shape}, tau {tau_s:g} s, from {from_s:g} s)",
+                (ELAPSED_S,), (shape, float(tau_s), float(from_s)))
+
+
 HVAC_SETPOINT_C = 20.0
 """Cabin / enclosure temperature an HVAC holds [degC]: heating below it, cooling above."""
 BATTERY_REFERENCE_C = 25.0
@@ -304,7 +347,7 @@ TERMS: dict[str, Term] = {
              (HEATER_REQUEST_W,)),
         Term("drift", "power", ("drift_W",), drift_feature,
              "extra power at a cold start, decaying with time constant DRIFT_TAU_S",
-             (ELAPSED_S,)),
+             (ELAPSED_S,), ("decay", DRIFT_TAU_S, 0.0)),
         Term("hvac_ambient", "power", ("hvac_heat_W_per_K", "hvac_cool_W_per_K"),
              hvac_ambient_feature,
              "heating / cooling power following the ambient temperature (no HVAC meter)",

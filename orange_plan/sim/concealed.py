@@ -6,7 +6,9 @@ diagnosis (``ConcealedCase.ctx``) leaves them out and no column of the recording
 Null cases conceal nothing (the scenario may still have a mis-set coefficient of a term it
 already has). Ground cases drive the Kiwibot on the hilly campus
 (``scenarios/kiwibot_campus.toml``), aerial ones fly the AR.Drone over its field
-(``scenarios/ar_drone_wind.toml``, battery enlarged to last the run).
+(``scenarios/ar_drone_wind.toml``, battery enlarged to last the run), marine ones sail the
+survey boat in its bay (``scenarios/marine_survey.toml``: a drift, as a load that rises or
+falls through the run, ``_drift_trend``, and a null case whose drag is mis-set).
 
 How a case is made
 ------------------
@@ -37,7 +39,7 @@ How a case is made
    (1-3 %); positions carry white noise; ``soc`` follows the true energy.
 
 Every case has the same columns: ``t_s, x_m, y_m, z_m, v_mps, yaw_rate_radps, accel_mps2,
-power_W, soc, sensor_rate_Hz, ambient_C, battery_C`` (SPEC §3): ``ambient_C`` is a smooth
+power_W, soc, sensor_rate_Hz, ambient_C, battery_C`` (docs/formats.md): ``ambient_C`` is a smooth
 non-monotone walk over 0-35 C (3-10 K of it in ``hvac_trip`` cases) and ``battery_C`` warms
 towards 25-30 C from a start at -10..20 C (-10..5 C in ``battery_temperature`` cases), so
 neither column's presence or range gives a case away; ``payload_kg`` and the wind columns are
@@ -76,7 +78,7 @@ from orange_plan.errors import InputError, OrangeError, close_match_hint
 from orange_plan.examples import examples_dir
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
-from orange_plan.physics.terms import TERMS
+from orange_plan.physics.terms import TERMS, drift_term
 from orange_plan.scenario import read_toml, scenario_from_dict
 from orange_plan.sim.route import Route
 from orange_plan.sim.simulator import MAX_RATE_HZ, simulate
@@ -88,14 +90,14 @@ CONCEALABLE: tuple[str, ...] = (
     "inertia", "regen", "turning", "wind", "payload", "hvac", "battery_resistance",
     "battery_temperature", "drift", "surface_label", "hvac_trip",
 )
-"""Vocabulary ids (SPEC §6) a case can conceal, and two variants: ``surface_label``, per-surface
+"""Vocabulary ids a case can conceal, and two variants: ``surface_label``, per-surface
 rolling on a map without surfaces, the recording carrying a terrain classifier's delayed
 ``surface`` labels (reported as ``surface_rolling``); ``hvac_trip``, the ``hvac`` effect on a
 trip whose ambient temperature spans only 3-10 K (reported as ``hvac``)."""
 
 PAIRS: tuple[tuple[str, str], ...] = (
     ("turning", "payload"), ("wind", "payload"), ("surface_rolling", "battery_resistance"),
-    ("hvac", "inertia"), ("drift", "turning"),
+    ("hvac", "inertia"), ("drift", "turning"), ("inertia", "regen"),
 )
 """Two concealed effects at once (``concealed_suite``)."""
 
@@ -106,13 +108,15 @@ KINDS: dict[str, tuple[str, ...]] = {
     "regen": ("ground",), "turning": ("ground",), "wind": ("aerial",),
     "payload": ("ground", "aerial"), "hvac": ("ground", "aerial"),
     "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
-    "drift": ("ground", "aerial"), "surface_label": ("ground",), "hvac_trip": ("ground", "aerial"),
+    "drift": ("ground", "aerial", "marine"), "surface_label": ("ground",),
+    "hvac_trip": ("ground", "aerial"),
 }
 """Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
 Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed
 ancillary draw is a constant beside the hover power: only its default, ground, separates it.)"""
 
-SCENARIOS = {"ground": "kiwibot_campus.toml", "aerial": "ar_drone_wind.toml"}
+SCENARIOS = {"ground": "kiwibot_campus.toml", "aerial": "ar_drone_wind.toml",
+             "marine": "marine_survey.toml"}
 """The example scenario of each kind (``scenarios/``)."""
 
 HVAC_SETPOINT_C = 20.0
@@ -133,10 +137,10 @@ class ConcealedCase:
     Attributes
     ----------
     name : ``"turning/seed3"``, ``"wind+payload/seed1"``, ``"null-ground/seed2"``
-    kind : ``"ground"`` or ``"aerial"``
+    kind : ``"ground"``, ``"aerial"`` or ``"marine"``
     ctx : the scenario as diagnosis sees it: its model lacks the concealed effect(s)
     recording : the recording cleaned by telemetry's normal reading path
-    frame : the same as a SPEC §3 table (what ``write`` puts in the CSV)
+    frame : the same as a recording table (what ``write`` puts in the CSV)
     truth : concealed term id -> {parameter name: true value}; ``{}`` for null cases
     scenario_toml : the TOML mapping of ``ctx`` (map path relative to ``scenarios/``)
     measurement : the recording's measurement effects (not physics, not for diagnosis to
@@ -212,6 +216,7 @@ class _Plan:
     surface_names: tuple[str, ...] = ()
     labels: bool = False   # a classifier's ``surface`` column, the seen map without surfaces
     ambient_C: tuple[float, float] = (0.0, 35.0)   # range of the ambient temperature's walk
+    concealed: tuple[str, ...] = ()
 
     def shape_route(self, style: str) -> None:
         """Ask for a route style; the first term that asks wins (recipes run in
@@ -317,7 +322,10 @@ def _inertia(plan: _Plan, rng) -> None:
 
 
 def _regen(plan: _Plan, rng) -> None:
-    for toml in (plan.truth_toml, plan.seen_toml):  # regen needs braking in the model
+    # regen needs braking: the truth has inertia, and the seen model too unless inertia is
+    # concealed beside it (a scenario with neither, as a car's a-priori road-load model)
+    for toml in (plan.truth_toml,) if "inertia" in plan.concealed else (plan.truth_toml,
+                                                                          plan.seen_toml):
         _add_model_term(toml, "inertia")
     _add_model_term(plan.truth_toml, "regen")
     true = rng.uniform(0.4, 0.8)
@@ -443,12 +451,46 @@ def _varied_load(plan: _Plan, rng) -> None:
 
 
 def _drift(plan: _Plan, rng) -> None:
+    if plan.kind == "marine":
+        _drift_trend(plan, rng)
+        return
     share = rng.uniform(0.05, 0.20)
     plan.power_effects.insert(0, _sizer(
         "drift", "drift_W", share,
         lambda frame: TERMS["drift"].features(_power_state(frame))[0]))
     plan.power_effects.append(lambda p, frame, power, _rng: power + _power_term_W(
         "drift", p.truth["drift"], frame))
+
+
+TREND_SHAPES = ("linear", "decay", "step")
+"""Shapes of a marine drift (``_drift_trend``, ``physics.terms.drift_shape_feature``)."""
+
+
+def _drift_trend(plan: _Plan, rng) -> None:
+    """A load that changes steadily through the run (a vessel's ancillary draw: pumps,
+    heaters, a sonar as the water warms or the survey deepens): up or down by 15-35 % of the
+    mean power over the run, as a line, a saturating exponential (time constant 5-50 % of
+    the run: ``-drift_W exp(-t / tau)`` beside the constant loads) or a step at 20-80 % of
+    the run. The truth's parameters are the drift term's (``physics.terms.drift_term``)."""
+    shape = str(rng.choice(TREND_SHAPES))
+    change = rng.uniform(0.15, 0.35) * (1.0 if rng.random() < 0.7 else -1.0)
+    span = plan.duration_s
+    tau = rng.uniform(0.05, 0.5) * span if shape == "decay" else span
+    from_s = rng.uniform(0.2, 0.8) * span if shape == "step" else 0.0
+    term = drift_term(shape, tau, from_s)
+    # a rise that levels off is a decay with a negative coefficient
+    sign = -1.0 if shape == "decay" else 1.0
+    extra = ({"drift_from_s": from_s} if shape == "step"
+             else {"drift_span_s" if shape == "linear" else "drift_tau_s": tau})
+
+    def add(p, frame, power, _rng):
+        feature = np.asarray(term.features(_power_state(frame))[0], float) + np.zeros(len(frame))
+        swing = float(np.ptp(feature)) or 1.0
+        drift_W = sign * change * float(np.mean(power)) / swing
+        p.truth["drift"] = {"drift_W": drift_W, **extra}
+        return power + drift_W * feature
+
+    plan.power_effects.append(add)
 
 
 RECIPES: dict[str, Callable[[_Plan, np.random.Generator], None]] = {
@@ -497,8 +539,10 @@ def _mis_set(plan: _Plan, rng) -> None:
             seen["ancillary"][key] *= factor
     elif plan.kind == "ground":
         _model(seen)["rolling_kg"] = plan.mass_over_omega_kg * factor
-    else:
+    elif plan.kind == "aerial":
         seen["robot"]["hover_W"] *= factor
+    else:  # marine: the drag through the water
+        seen["robot"]["drag_coeff_kg_per_m"] *= factor
 
 
 # --- routes ----------------------------------------------------------------------------------
@@ -664,7 +708,7 @@ def _check(terms: Sequence[str], kind: str | None, duration_s: float, rate_Hz: f
         kind = next((KINDS[t][0] for t in terms if KINDS[t][0] in kinds), kinds[0] if kinds
                     else "ground")
     if kind not in SCENARIOS:
-        raise InputError(f"kind = {kind!r} must be 'ground' or 'aerial'")
+        raise InputError(f"kind = {kind!r} must be one of {', '.join(SCENARIOS)}")
     wrong = [t for t in terms if kind not in KINDS[t]]
     if wrong:
         raise InputError(f"term '{wrong[0]}' cannot be concealed on a {kind} robot "
@@ -685,7 +729,8 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
     ----------
     terms : concealed term ids (``CONCEALABLE``), one or two; empty: a null case
     seed : random seed; the same (terms, seed, kind, duration, rate) give the same case
-    kind : ``"ground"`` or ``"aerial"``; None: the terms' default (``KINDS``), ground for nulls
+    kind : ``"ground"``, ``"aerial"`` or ``"marine"``; None: the terms' default (``KINDS``),
+        ground for nulls
     duration_s : length of the run [s] (at least 60)
     rate_Hz : recording rate [Hz]
     labels : write a terrain classifier's ``surface`` column and hand over the map without
@@ -703,13 +748,13 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
     """
     terms = tuple(terms)
     kind = _check(terms, kind, duration_s, rate_Hz)
-    rng = np.random.default_rng([int(seed), ("ground", "aerial").index(kind),
+    rng = np.random.default_rng([int(seed), tuple(SCENARIOS).index(kind),
                                  *(CONCEALABLE.index(t) + 1 for t in terms)])
     scenario_path = examples_dir("scenarios", "--scenarios") / SCENARIOS[kind]
     base = read_toml(scenario_path, "scenario")
     if kind == "aerial":
         base["battery"]["rated_energy_Wh"] *= max(1.0, duration_s / AERIAL_PACK_S)
-    plan = _Plan(kind, duration_s, copy.deepcopy(base), copy.deepcopy(base))
+    plan = _Plan(kind, duration_s, copy.deepcopy(base), copy.deepcopy(base), concealed=terms)
     base_ctx = context_of(scenario_from_dict(base, scenario_path))
     plan.mass_over_omega_kg = base_ctx.scenario.robot.mass_kg / base_ctx.scenario.omega
     plan.surface_names = base_ctx.world.map.surface_names
@@ -936,14 +981,19 @@ def _finish(plan: _Plan, ctx: Context, frame: pd.DataFrame, rng) -> pd.DataFrame
 
 def suite_requests() -> list[tuple[tuple[str, ...], str | None]]:
     """(terms, kind) of one seed of the suite: every term of ``CONCEALABLE`` (its default
-    kind), every pair of ``PAIRS``, then the ground and aerial null cases."""
+    kind), every pair of ``PAIRS``, the marine drift, then the ground, aerial and marine null
+    cases."""
     return [*(((t,), None) for t in CONCEALABLE), *((p, None) for p in PAIRS),
-            ((), "ground"), ((), "aerial")]
+            (("drift",), "marine"), ((), "ground"), ((), "aerial"), ((), "marine")]
 
 
 def case_label(terms: Sequence[str], kind: str | None) -> str:
-    """The name of a case without its seed: ``"wind+payload"``, ``"null-ground"``."""
-    return "+".join(terms) if terms else f"null-{kind or 'ground'}"
+    """The name of a case without its seed: ``"wind+payload"``, ``"null-ground"``, and a term
+    on a kind other than its default ``"drift-marine"``."""
+    if not terms:
+        return f"null-{kind or 'ground'}"
+    label = "+".join(terms)
+    return label if kind is None or kind == KINDS[terms[0]][0] else f"{label}-{kind}"
 
 
 def concealed_suite(seeds: Iterable[int], duration_s: float = 1800.0,
