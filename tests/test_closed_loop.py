@@ -90,11 +90,13 @@ def test_closed_loop_missions_end_at_home_within_the_battery(map_seed, seed):
 
 
 def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
-    """Past the guaranteed extent the way home is never taken as better known than the
-    model's run-to-run discrepancy: reserve >= z_p * discrepancy * E_home."""
+    """Past the guaranteed extent the way home is never taken as better known than the floor's
+    share of the model's run-to-run discrepancy:
+    reserve >= z_p * RETURN_SPREAD_FLOOR * discrepancy * E_home."""
     from scipy.special import ndtri
 
     from orange_plan.planning.session import MissionSession
+    from orange_plan.planning.session.facade import RETURN_SPREAD_FLOOR
     from orange_plan.sweep.flight import _simulate
 
     spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
@@ -105,7 +107,8 @@ def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
     frame = _simulate(kit.ctx, session.route_xy_m, session.route_speed_mps, None, 0, 5.0).frame
     d = session.feed(frame.iloc[:100][["t_s", "power_W", "x_m", "y_m"]])
     z = float(ndtri(kit.ctx.scenario.mission.reserve.value))
-    assert d.reserve_J >= z * kit.ctx.model.discrepancy_rel_sd * d.energy_to_home_J - 1e-6
+    floor = RETURN_SPREAD_FLOOR * kit.ctx.model.discrepancy_rel_sd
+    assert d.reserve_J >= z * floor * d.energy_to_home_J - 1e-6
 
 
 def test_the_session_names_the_way_home_it_costs():
@@ -117,3 +120,80 @@ def test_the_session_names_the_way_home_it_costs():
     back = session.way_home_xy_m()
     assert np.allclose(back[-1], kit.ctx.world.home_xy_m)
     assert kit.ctx.world.segments_free(back[:-1], back[1:]).all()
+
+
+def _closed_loop_session(batches: int):
+    """A closed-loop session on a small sweep plan with a battery four times the plan's (room
+    to spare), fed ``batches`` 10 s batches of the simulated route (the study's telemetry
+    rate)."""
+    from dataclasses import replace
+
+    from orange_plan.planning.session import MissionSession
+    from orange_plan.sweep.flight import _simulate
+
+    spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
+    kit = map_kit(spec)
+    sc = kit.ctx.scenario
+    big = replace(sc.battery, rated_energy_Wh=4.0 * sc.battery.rated_energy_Wh)
+    ctx = kit.ctx.with_scenario(replace(sc, battery=big))
+    session = MissionSession(ctx, kit.plan, n_vertices=300, closed_loop=True)
+    frame = _simulate(ctx, session.route_xy_m, session.route_speed_mps, None, 0, 5.0).frame
+    for a in range(0, 50 * batches, 50):
+        session.feed(frame.iloc[a:a + 50][["t_s", "power_W", "x_m", "y_m"]])
+    return kit, session
+
+
+def _distance_to_polyline(p, xy) -> float:
+    a, b = xy[:-1], xy[1:]
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab),
+                                                                 1e-18), 0, 1)
+    return float(np.min(np.hypot(*(p - (a + t[:, None] * ab)).T)))
+
+
+def test_with_energy_to_spare_the_homeward_route_flies_the_stretch_ahead_first():
+    """Told home with a wide margin, the robot first flies the whole stretch the live check
+    looked at (the next batch's route), then the way home from its end."""
+    kit, session = _closed_loop_session(batches=2)
+    ahead, _ = session._route_ahead()
+    back = session.homeward_xy_m()
+    assert np.allclose(back[0], session.position_xy_m)
+    assert np.allclose(back[-1], kit.ctx.world.home_xy_m)
+    assert kit.ctx.world.segments_free(back[:-1], back[1:]).all()
+    k = int(np.flatnonzero(np.hypot(*(back - ahead[-1]).T) < 1e-9)[0])
+    assert all(_distance_to_polyline(p, ahead) < 1e-6 for p in back[:k + 1])
+    assert np.allclose(back[k:], session._way_home_from(ahead[-1]))
+
+
+def test_with_no_energy_to_spare_the_homeward_route_is_the_way_home():
+    """A margin already spent leaves nothing for the stretch ahead: straight home."""
+    _, session = _closed_loop_session(batches=2)
+    x, y = session.position_xy_m
+    left = session.energy_available_J - session.energy_used_J
+    d = session.feed([{"t_s": session.time_s + 1.0, "power_W": left - 1.0, "x_m": x,
+                       "y_m": y}])
+    assert d.action == "return_home" and d.homing_margin_J < 0
+    assert np.allclose(session.homeward_xy_m(), session.way_home_xy_m())
+
+
+def test_the_homeward_route_ends_where_the_margin_is_spent():
+    """Cut where the stretch, the way home from its end and the reserve for both just fit:
+    the stretch taken fits, the whole stretch (when not taken) does not."""
+    from orange_plan.planning.paths import cut_path
+    from orange_plan.planning.session.facade import HOMEWARD_CUTS
+
+    _, session = _closed_loop_session(batches=2)
+    ahead, speeds = session._route_ahead()
+    home = session._return_home()
+    stretch = session._stretch_J(ahead, speeds)
+    # as if the battery held only a margin worth half the stretch: part of it fits, not all
+    # (the energy alone: a batch would also teach the estimator)
+    session._intake.energy_used_J = (session.energy_available_J - home.energy_J
+                                     - home.reserve_J - 0.5 * stretch)
+    back = session.homeward_xy_m()
+    length = float(np.sum(np.hypot(*np.diff(ahead, axis=0).T)))
+    taken = [share for share in np.arange(1, HOMEWARD_CUTS + 1) / HOMEWARD_CUTS
+             if np.hypot(*(back - cut_path(ahead, share * length)[-1]).T).min() < 1e-9]
+    assert taken and max(taken) < 1.0
+    way = session.way_home_xy_m()
+    assert back.shape != way.shape or not np.allclose(back, way)
