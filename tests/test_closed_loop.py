@@ -197,3 +197,28 @@ def test_the_homeward_route_ends_where_the_margin_is_spent():
     assert taken and max(taken) < 1.0
     way = session.way_home_xy_m()
     assert back.shape != way.shape or not np.allclose(back, way)
+
+
+def test_the_sweep_is_chosen_under_the_closed_loops_return_reserve(monkeypatch, tmp_path):
+    """The plan's sweep is chosen by what it senses under the rule that flies it: the closed
+    loop keeps the floor of the a-priori discrepancy for its way home, not all of it; the
+    plan's own checks keep the scenario's model."""
+    from orange_plan.bench.mission import study_scenario
+    from orange_plan.context import load_context
+    from orange_plan.planning import sweeps
+    from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR
+    from orange_plan.planning.tour import plan_tour
+
+    seen = []
+    real = sweeps.best_sweep
+
+    def spy(ctx, *args, **kwargs):
+        seen.append(ctx.model.discrepancy_rel_sd)
+        return real(ctx, *args, **kwargs)
+
+    monkeypatch.setattr(sweeps, "best_sweep", spy)
+    spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
+    ctx = load_context(study_scenario(tmp_path, spec))
+    plan = plan_tour(ctx, n_vertices=300, seed=0, bitstar_legs=0)
+    assert seen == [pytest.approx(RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd)]
+    assert plan.margin_J.min() >= 0

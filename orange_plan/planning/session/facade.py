@@ -21,7 +21,7 @@ from orange_plan.physics.pathcost import path_energy
 from orange_plan.planning.paths import cut_path, distinct_vertices
 from orange_plan.planning.plan import Plan, StartState
 from orange_plan.planning.reach import prepare_reach, way_home
-from orange_plan.planning.reserve import reserve_from
+from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, reserve_from
 from orange_plan.planning.session.decision import Decision, Home, HomingState, decide
 from orange_plan.planning.session.events import (
     EventLog,
@@ -31,20 +31,6 @@ from orange_plan.planning.session.events import (
 )
 from orange_plan.planning.session.intake import Intake, validated_batch
 from orange_plan.world.geomap import keep_out_polygon
-
-RETURN_SPREAD_FLOOR = 0.4
-"""A closed loop's way home is never taken as better known than this share of the model's
-a-priori run-to-run discrepancy (``EnergyModel.discrepancy_rel_sd``) [-]: the estimator learns
-the run on the way out, the way back crosses other ground in other headings. Sized on the
-statistic the reserve guards against: the energy of the route flown home (``homeward_xy_m``)
-against the online model's prediction of that same route, plus the battery counted on against
-the true one. On 49 training returns of ``bench mission`` (seeds 1000-1019, apart from the
-benchmark's 0-499) no flown return was more than 4.9 % dearer than the online prediction
-of the same route (2.6 % with the battery counted on set against the true one; sd 4.5 %). At
-confidence 0.99 this floor keeps 2.33 x 0.4 x 0.25 = 23 % of the return's energy (the
-estimator's own spread when wider): about five times the worst seen. The whole a-priori
-discrepancy (58 % of the return) left 5-8 % of the battery unused at home."""
-
 
 HOMEWARD_CUTS = 8
 """Even cuts of the stretch ahead tried for the last piece of route flown before the way home
