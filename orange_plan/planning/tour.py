@@ -220,12 +220,12 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
                        longest, lanes=lanes)
     if sweep is None:
         return None
-    # its turn points, which the guaranteed prefix starts from, on the scenario's model
-    sweep = replace(sweep, score=score_route(ctx, reach.fast, home, setup.grid, sweep.xy_m,
-                                             e_left, time_left, score_step_m(ctx), longest,
-                                             reach.reserve))
-    checked = _guaranteed_prefix(ctx, setup, start, sweep.xy_m, sweep.score.open_s_m,
-                                 sweep.score.closed_s_m, time_left, optimise_speed)
+    # the guaranteed prefix is sought from its turn points on the scenario's model; the
+    # closed loop's own (the summary's expectation) are the ones it was chosen by
+    opened = score_route(ctx, reach.fast, home, setup.grid, sweep.xy_m, e_left, time_left,
+                         score_step_m(ctx), longest, reach.reserve)
+    checked = _guaranteed_prefix(ctx, setup, start, sweep.xy_m, opened.open_s_m,
+                                 opened.closed_s_m, time_left, optimise_speed)
     if checked is None:
         return None
     walk_setup, plan, variance, cut_m = checked
