@@ -222,3 +222,25 @@ def test_the_sweep_is_chosen_under_the_closed_loops_return_reserve(monkeypatch, 
     plan = plan_tour(ctx, n_vertices=300, seed=0, bitstar_legs=0)
     assert seen == [pytest.approx(RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd)]
     assert plan.margin_J.min() >= 0
+
+
+def test_a_stretch_that_leaves_the_free_space_is_not_flown_home(monkeypatch):
+    """The stretch starts at the reported position, off the route by the tracking error: where
+    its join to the route is not free, the robot goes straight home by the checked way."""
+    _, session = _closed_loop_session(batches=2)
+    ahead, _ = session._route_ahead()
+    here = np.asarray(session.position_xy_m)
+    world = session.ctx.world
+    real = type(world).segments_free
+
+    def blocked_from_here_along_the_stretch(self, a, b):
+        # as if an obstacle stood between the position and the route ahead (the ways home
+        # from the position, joined to the roadmap, stay free)
+        a, b = np.atleast_2d(a), np.atleast_2d(b)
+        onto = np.array([_distance_to_polyline(p, ahead) < 1e-6 for p in b])
+        return real(self, a, b) & ~(np.all(np.isclose(a, here), axis=1) & onto)
+
+    monkeypatch.setattr(type(world), "segments_free", blocked_from_here_along_the_stretch)
+    back = session.homeward_xy_m()
+    way = session.way_home_xy_m()
+    assert back.shape == way.shape and np.allclose(back, way)

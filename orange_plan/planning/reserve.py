@@ -48,7 +48,7 @@ benchmark's 0-499) no flown return was more than 4.9 % dearer than the online pr
 of the same route (2.6 % with the battery counted on set against the true one; sd 4.5 %). At
 confidence 0.99 this floor keeps 2.33 x 0.4 x 0.25 = 23 % of the return's energy (the
 estimator's own spread when wider): about five times the worst seen. The whole a-priori
-discrepancy (58 % of the return) left 5-8 % of the battery unused at home."""
+discrepancy (58 % of the return) left 6-9 % of the battery unused at home."""
 
 
 def _broadcast(values, *operands) -> np.ndarray:

@@ -325,8 +325,9 @@ class MissionSession:
 
         (online model; the reserve is the return reserve of ``_return_home`` with the
         stretch's energy added to the return's and its relative spread applied to it), then
-        the way home from ``s``. The route flown after the turn thus keeps the live check's
-        own guarantee at its end, where the robot would have been told to turn."""
+        the way home from ``s``; a cut whose stretch leaves the free space is not taken. The
+        route flown after the turn thus keeps the live check's own guarantee at its end,
+        where the robot would have been told to turn."""
         ahead = self._route_ahead() if self.closed_loop else None
         if ahead is None:
             return self.way_home_xy_m()
@@ -336,7 +337,9 @@ class MissionSession:
         rule, rel = reserve_from(self.ctx.scenario), self._return_relative_spread()
         for share in np.arange(HOMEWARD_CUTS, 0, -1) / HOMEWARD_CUTS:
             part = cut_path(xy, share * length)
-            if len(part) < 2:
+            # the stretch starts at the reported position, off the route by the tracking
+            # error: its join to the route must keep the map's clearance too
+            if len(part) < 2 or not self.ctx.world.segments_free(part[:-1], part[1:]).all():
                 continue
             then = self._return_home(part[-1])
             if not math.isfinite(then.energy_J):
