@@ -177,26 +177,28 @@ def test_with_no_energy_to_spare_the_homeward_route_is_the_way_home():
 
 
 def test_the_homeward_route_ends_where_the_margin_is_spent():
-    """Cut where the stretch, the way home from its end and the reserve for both just fit:
-    the stretch taken fits, the whole stretch (when not taken) does not."""
+    """Cut where the stretch, the way home from its end and the reserve for both fit: the
+    longest cut that fits is taken, no longer one (the way home may shrink along the
+    stretch, so fitting need not be monotone)."""
     from orange_plan.planning.paths import cut_path
     from orange_plan.planning.session.facade import HOMEWARD_CUTS
 
     _, session = _closed_loop_session(batches=2)
     ahead, speeds = session._route_ahead()
-    home = session._return_home()
-    stretch = session._stretch_J(ahead, speeds)
-    # as if the battery held only a margin worth half the stretch: part of it fits, not all
-    # (the energy alone: a batch would also teach the estimator)
-    session._intake.energy_used_J = (session.energy_available_J - home.energy_J
-                                     - home.reserve_J - 0.5 * stretch)
-    back = session.homeward_xy_m()
     length = float(np.sum(np.hypot(*np.diff(ahead, axis=0).T)))
-    taken = [share for share in np.arange(1, HOMEWARD_CUTS + 1) / HOMEWARD_CUTS
-             if np.hypot(*(back - cut_path(ahead, share * length)[-1]).T).min() < 1e-9]
-    assert taken and max(taken) < 1.0
-    way = session.way_home_xy_m()
-    assert back.shape != way.shape or not np.allclose(back, way)
+    cuts = [cut_path(ahead, share * length)
+            for share in np.arange(1, HOMEWARD_CUTS + 1) / HOMEWARD_CUTS]
+    needs = [session._homeward_need_J(part, speeds) for part in cuts]
+    # as if the battery held a joule less than the whole stretch needs (the energy alone: a
+    # batch would also teach the estimator)
+    session._intake.energy_used_J = session.energy_available_J - needs[-1] + 1.0
+    spare = session.energy_available_J - session.energy_used_J
+    back = session.homeward_xy_m()
+    taken = [i for i, part in enumerate(cuts)
+             if np.hypot(*(back - part[-1]).T).min() < 1e-9 and needs[i] <= spare]
+    fitting = [i for i, need in enumerate(needs) if need <= spare]
+    assert needs[-1] > spare and (HOMEWARD_CUTS - 1) not in taken
+    assert max(taken, default=None) == max(fitting, default=None)
 
 
 def test_the_sweep_is_chosen_under_the_closed_loops_return_reserve(monkeypatch, tmp_path):

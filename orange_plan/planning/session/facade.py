@@ -334,25 +334,29 @@ class MissionSession:
         xy, speeds = ahead
         length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
         spare = self.energy_available_J - self.energy_used_J
-        rule, rel = reserve_from(self.ctx.scenario), self._return_relative_spread()
         for share in np.arange(HOMEWARD_CUTS, 0, -1) / HOMEWARD_CUTS:
             part = cut_path(xy, share * length)
             # the stretch starts at the reported position, off the route by the tracking
             # error: its join to the route must keep the map's clearance too
             if len(part) < 2 or not self.ctx.world.segments_free(part[:-1], part[1:]).all():
                 continue
-            then = self._return_home(part[-1])
-            if not math.isfinite(then.energy_J):
-                continue
-            stretch = self._stretch_J(part, speeds[:len(part) - 1])
-            sd = math.hypot(then.sd_J, rel * stretch)
-            need = stretch + then.energy_J + float(rule.return_only_J(
-                stretch + then.energy_J, sd**2, self.energy_available_J))
-            if need <= spare:
+            if self._homeward_need_J(part, speeds) <= spare:
                 back = self._way_home_from(part[-1])
                 if back is not None:
                     return np.vstack([part, back[1:]])
         return self.way_home_xy_m()
+
+    def _homeward_need_J(self, part, speeds) -> float:
+        """Energy a homeward route needs [J]: the stretch ``part`` (from the position, at the
+        first of ``speeds``), the way home from its end and the return reserve for both
+        (``homeward_xy_m``); inf when no way home is found from its end."""
+        then = self._return_home(part[-1])
+        if not math.isfinite(then.energy_J):
+            return math.inf
+        stretch = self._stretch_J(part, speeds[:len(part) - 1])
+        sd = math.hypot(then.sd_J, self._return_relative_spread() * stretch)
+        return stretch + then.energy_J + float(reserve_from(self.ctx.scenario).return_only_J(
+            stretch + then.energy_J, sd**2, self.energy_available_J))
 
     def _position_where(self) -> str:
         """"free" where the map allows the robot to be (``World.is_free``), else
