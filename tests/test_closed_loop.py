@@ -90,11 +90,13 @@ def test_closed_loop_missions_end_at_home_within_the_battery(map_seed, seed):
 
 
 def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
-    """Past the guaranteed extent the way home is never taken as better known than the
-    model's run-to-run discrepancy: reserve >= z_p * discrepancy * E_home."""
+    """Past the guaranteed extent the way home is never taken as better known than the floor's
+    share of the model's run-to-run discrepancy:
+    reserve >= z_p * RETURN_SPREAD_FLOOR * discrepancy * E_home."""
     from scipy.special import ndtri
 
     from orange_plan.planning.session import MissionSession
+    from orange_plan.planning.session.facade import RETURN_SPREAD_FLOOR
     from orange_plan.sim.flight import simulate_route as _simulate
 
     spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
@@ -105,7 +107,8 @@ def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
     frame = _simulate(kit.ctx, session.route_xy_m, session.route_speed_mps, None, 0, 5.0).frame
     d = session.feed(frame.iloc[:100][["t_s", "power_W", "x_m", "y_m"]])
     z = float(ndtri(kit.ctx.scenario.mission.reserve.value))
-    assert d.reserve_J >= z * kit.ctx.model.discrepancy_rel_sd * d.energy_to_home_J - 1e-6
+    floor = RETURN_SPREAD_FLOOR * kit.ctx.model.discrepancy_rel_sd
+    assert d.reserve_J >= z * floor * d.energy_to_home_J - 1e-6
 
 
 def test_the_session_names_the_way_home_it_costs():
@@ -117,3 +120,129 @@ def test_the_session_names_the_way_home_it_costs():
     back = session.way_home_xy_m()
     assert np.allclose(back[-1], kit.ctx.world.home_xy_m)
     assert kit.ctx.world.segments_free(back[:-1], back[1:]).all()
+
+
+def _closed_loop_session(batches: int):
+    """A closed-loop session on a small sweep plan with a battery four times the plan's (room
+    to spare), fed ``batches`` 10 s batches of the simulated route (the study's telemetry
+    rate)."""
+    from dataclasses import replace
+
+    from orange_plan.planning.session import MissionSession
+    from orange_plan.sim.flight import simulate_route as _simulate
+
+    spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
+    kit = map_kit(spec)
+    sc = kit.ctx.scenario
+    big = replace(sc.battery, rated_energy_Wh=4.0 * sc.battery.rated_energy_Wh)
+    ctx = kit.ctx.with_scenario(replace(sc, battery=big))
+    session = MissionSession(ctx, kit.plan, n_vertices=300, closed_loop=True)
+    frame = _simulate(ctx, session.route_xy_m, session.route_speed_mps, None, 0, 5.0).frame
+    for a in range(0, 50 * batches, 50):
+        session.feed(frame.iloc[a:a + 50][["t_s", "power_W", "x_m", "y_m"]])
+    return kit, session
+
+
+def _distance_to_polyline(p, xy) -> float:
+    a, b = xy[:-1], xy[1:]
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab),
+                                                                 1e-18), 0, 1)
+    return float(np.min(np.hypot(*(p - (a + t[:, None] * ab)).T)))
+
+
+def test_with_energy_to_spare_the_homeward_route_flies_the_stretch_ahead_first():
+    """Told home with a wide margin, the robot first flies the whole stretch the live check
+    looked at (the next batch's route), then the way home from its end."""
+    kit, session = _closed_loop_session(batches=2)
+    ahead, _ = session._route_ahead()
+    back = session.homeward_xy_m()
+    assert np.allclose(back[0], session.position_xy_m)
+    assert np.allclose(back[-1], kit.ctx.world.home_xy_m)
+    assert kit.ctx.world.segments_free(back[:-1], back[1:]).all()
+    k = int(np.flatnonzero(np.hypot(*(back - ahead[-1]).T) < 1e-9)[0])
+    assert all(_distance_to_polyline(p, ahead) < 1e-6 for p in back[:k + 1])
+    assert np.allclose(back[k:], session._way_home_from(ahead[-1]))
+
+
+def test_with_no_energy_to_spare_the_homeward_route_is_the_way_home():
+    """A margin already spent leaves nothing for the stretch ahead: straight home."""
+    _, session = _closed_loop_session(batches=2)
+    x, y = session.position_xy_m
+    left = session.energy_available_J - session.energy_used_J
+    d = session.feed([{"t_s": session.time_s + 1.0, "power_W": left - 1.0, "x_m": x,
+                       "y_m": y}])
+    assert d.action == "return_home" and d.homing_margin_J < 0
+    assert np.allclose(session.homeward_xy_m(), session.way_home_xy_m())
+
+
+def test_the_homeward_route_ends_where_the_margin_is_spent():
+    """Cut where the stretch, the way home from its end and the reserve for both fit: the
+    longest cut that fits is taken, no longer one (the way home may shrink along the
+    stretch, so fitting need not be monotone)."""
+    from orange_plan.planning.paths import cut_path
+    from orange_plan.planning.session.facade import HOMEWARD_CUTS
+
+    _, session = _closed_loop_session(batches=2)
+    ahead, speeds = session._route_ahead()
+    length = float(np.sum(np.hypot(*np.diff(ahead, axis=0).T)))
+    cuts = [cut_path(ahead, share * length)
+            for share in np.arange(1, HOMEWARD_CUTS + 1) / HOMEWARD_CUTS]
+    needs = [session._homeward_need_J(part, speeds) for part in cuts]
+    # as if the battery held a joule less than the whole stretch needs (the energy alone: a
+    # batch would also teach the estimator)
+    session._intake.energy_used_J = session.energy_available_J - needs[-1] + 1.0
+    spare = session.energy_available_J - session.energy_used_J
+    back = session.homeward_xy_m()
+    taken = [i for i, part in enumerate(cuts)
+             if np.hypot(*(back - part[-1]).T).min() < 1e-9 and needs[i] <= spare]
+    fitting = [i for i, need in enumerate(needs) if need <= spare]
+    assert needs[-1] > spare and (HOMEWARD_CUTS - 1) not in taken
+    assert max(taken, default=None) == max(fitting, default=None)
+
+
+def test_the_sweep_is_chosen_under_the_closed_loops_return_reserve(monkeypatch, tmp_path):
+    """The plan's sweep is chosen by what it senses under the rule that flies it: the closed
+    loop keeps the floor of the a-priori discrepancy for its way home, not all of it; the
+    plan's own checks keep the scenario's model."""
+    from orange_plan.bench.mission import study_scenario
+    from orange_plan.context import load_context
+    from orange_plan.planning import sweeps
+    from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR
+    from orange_plan.planning.tour import plan_tour
+
+    seen = []
+    real = sweeps.best_sweep
+
+    def spy(ctx, *args, **kwargs):
+        seen.append(ctx.model.discrepancy_rel_sd)
+        return real(ctx, *args, **kwargs)
+
+    monkeypatch.setattr(sweeps, "best_sweep", spy)
+    spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]
+    ctx = load_context(study_scenario(tmp_path, spec))
+    plan = plan_tour(ctx, n_vertices=300, seed=0, bitstar_legs=0)
+    assert seen == [pytest.approx(RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd)]
+    assert plan.margin_J.min() >= 0
+
+
+def test_a_stretch_that_leaves_the_free_space_is_not_flown_home(monkeypatch):
+    """The stretch starts at the reported position, off the route by the tracking error: where
+    its join to the route is not free, the robot goes straight home by the checked way."""
+    _, session = _closed_loop_session(batches=2)
+    ahead, _ = session._route_ahead()
+    here = np.asarray(session.position_xy_m)
+    world = session.ctx.world
+    real = type(world).segments_free
+
+    def blocked_from_here_along_the_stretch(self, a, b):
+        # as if an obstacle stood between the position and the route ahead (the ways home
+        # from the position, joined to the roadmap, stay free)
+        a, b = np.atleast_2d(a), np.atleast_2d(b)
+        onto = np.array([_distance_to_polyline(p, ahead) < 1e-6 for p in b])
+        return real(self, a, b) & ~(np.all(np.isclose(a, here), axis=1) & onto)
+
+    monkeypatch.setattr(type(world), "segments_free", blocked_from_here_along_the_stretch)
+    back = session.homeward_xy_m()
+    way = session.way_home_xy_m()
+    assert back.shape == way.shape and np.allclose(back, way)

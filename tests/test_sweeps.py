@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -30,7 +31,7 @@ from orange_plan.planning.lawnmower import (
 )
 from orange_plan.planning.plan import StartState
 from orange_plan.planning.reach import prepare_reach
-from orange_plan.planning.reserve import EnergyReserve
+from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, EnergyReserve
 from orange_plan.planning.sweeps import lane_orders, ordered_pieces, score_route, score_step_m
 from orange_plan.planning.tour import (
     drivable_m,
@@ -214,8 +215,11 @@ def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_fac
     left = reach.energy_available_J
     limit = ctx.scenario.mission.time_limit_s or math.inf
     lawn = plan_lawnmower(ctx, reach).xy_m
-    own = score_route(ctx, reach.fast, home, setup.grid, lawn, left, limit, score_step_m(ctx),
-                      1.05 * drivable_m(ctx, reach, limit), reach.reserve)
+    # the closed loop's rule: the floor of the a-priori discrepancy kept for the return
+    flown = replace(ctx, model=ctx.model.with_discrepancy(
+        RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd))
+    own = score_route(flown, reach.fast, home, setup.grid, lawn, left, limit,
+                      score_step_m(ctx), 1.05 * drivable_m(ctx, reach, limit), reach.reserve)
     assert swept.summary["closed_loop_coverage_m2"] >= own.closed_m2 - 1e-6
 
     fresh = prepare_reach(ctx, n_vertices=250, seed=1)

@@ -389,9 +389,10 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int, plan=None,
                 speed = np.r_[speed[0], speed]
         else:
             flown.returned_by_rule = True
-            # the way home the session costed (the bench's own shortest-return tree may
-            # join home straight over a hill the session's roadmap goes round)
-            xy = session.way_home_xy_m()
+            # what the session says to drive home: in closed loop the stretch ahead its
+            # margin still pays for, then the way home it costed (the bench's own
+            # shortest-return tree may join home straight over a hill the roadmap goes round)
+            xy = session.homeward_xy_m()
             if xy is None or len(xy) < 2:
                 xy = kit.home.path(here)
             speed = np.full(len(xy), kit.home.speed_mps)

@@ -65,7 +65,7 @@ from orange_plan.planning.reach import (
     query_points,
     return_probability,
 )
-from orange_plan.planning.reserve import reserve_from
+from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, reserve_from
 from orange_plan.planning.returns import DrivenReturns
 from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, energy_field
 
@@ -193,7 +193,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     """
     from orange_plan.planning.homepaths import HomePaths
     from orange_plan.planning.lawnmower import Detours, SweepLanes, plan_lawnmower
-    from orange_plan.planning.sweeps import best_sweep
+    from orange_plan.planning.sweeps import best_sweep, score_route, score_step_m
 
     reach = setup.reach
     home_xy = np.asarray(reach.home_xy_m, float)
@@ -210,12 +210,22 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     # no lawnmower joins up on some roadmaps: the other sweeps still may
     with contextlib.suppress(PlanningError):
         baseline_xy = plan_lawnmower(ctx, reach, lanes=lanes).xy_m if baseline else None
-    sweep = best_sweep(ctx, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
-                       1.05 * drivable_m(ctx, reach, time_left), lanes=lanes)
+    longest = 1.05 * drivable_m(ctx, reach, time_left)
+    # chosen under the rule that flies it: a closed loop keeps for its way home the floor of
+    # the a-priori discrepancy (``RETURN_SPREAD_FLOOR``), not all of it; scored with all of
+    # it, sweeps whose returns are short look better than they fly
+    flown = replace(ctx, model=ctx.model.with_discrepancy(
+        RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd))
+    sweep = best_sweep(flown, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
+                       longest, lanes=lanes)
     if sweep is None:
         return None
-    checked = _guaranteed_prefix(ctx, setup, start, sweep.xy_m, sweep.score.open_s_m,
-                                 sweep.score.closed_s_m, time_left, optimise_speed)
+    # the guaranteed prefix is sought from its turn points on the scenario's model; the
+    # closed loop's own (the summary's expectation) are the ones it was chosen by
+    opened = score_route(ctx, reach.fast, home, setup.grid, sweep.xy_m, e_left, time_left,
+                         score_step_m(ctx), longest, reach.reserve)
+    checked = _guaranteed_prefix(ctx, setup, start, sweep.xy_m, opened.open_s_m,
+                                 opened.closed_s_m, time_left, optimise_speed)
     if checked is None:
         return None
     walk_setup, plan, variance, cut_m = checked

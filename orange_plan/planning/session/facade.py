@@ -18,23 +18,18 @@ from scipy.spatial import cKDTree
 from orange_plan.errors import InputError
 from orange_plan.identify.online import WINDOW_PARTS
 from orange_plan.physics.pathcost import path_energy
-from orange_plan.planning.paths import distinct_vertices
+from orange_plan.planning.paths import cut_path, distinct_vertices
 from orange_plan.planning.plan import Plan, StartState, plan_from_geojson
 from orange_plan.planning.reach import prepare_reach, way_home
-from orange_plan.planning.reserve import reserve_from
+from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, reserve_from
 from orange_plan.planning.session.decision import Decision, Home, HomingState, decide
 from orange_plan.planning.session.events import EventLog, check_state, replay_events
 from orange_plan.planning.session.intake import Intake, validated_batch
 from orange_plan.world.geomap import keep_out_polygon
 
-RETURN_SPREAD_FLOOR = 1.0
-"""A closed loop's way home is never taken as better known than this share of the model's
-a-priori run-to-run discrepancy (``EnergyModel.discrepancy_rel_sd``) [-]: the estimator learns
-the run on the way out, the way back crosses other ground in other headings. Measured on four
-bench-mission truths beyond the model (a 5.7 kg payload, rolling x 1.37, an aged battery, a
-4.2 m/s wind): with the estimator's own spread all four stranded (13-713 J short); with half
-the discrepancy the wind still did; with all of it none, at 0-16 % less coverage on
-calibration truths."""
+HOMEWARD_CUTS = 8
+"""Even cuts of the stretch ahead tried for the last piece of route flown before the way home
+(``MissionSession.homeward_xy_m``) [-]."""
 
 
 class MissionSession:
@@ -279,30 +274,84 @@ class MissionSession:
     def _lookahead_J(self, home: Home) -> float:
         """Closed loop: what the next decision comes too late for [J]. The robot flies on
         for about one more batch before it can hear the next decision: the online model's
-        energy of that stretch of the route ahead (as far as one batch's time goes at the
-        commanded speed), plus how much dearer the way home is from its end; at the route's
-        end, what the last batch drew. A hill
+        energy of that stretch of the route ahead (``_route_ahead``), plus how much dearer
+        the way home is from its end; at the route's end, what the last batch drew. A hill
         just ahead is thus paid for before it is climbed."""
-        from orange_plan.planning.paths import cut_path
-
         last = self._intake.last_batch_J
+        ahead = self._route_ahead() if math.isfinite(home.energy_J) else None
+        if ahead is None:
+            return last
+        stretch = self._stretch_J(*ahead)
+        then = self._return_home(ahead[0][-1])
+        dearer = (then.energy_J + then.reserve_J) - (home.energy_J + home.reserve_J)
+        return float(stretch) + max(float(dearer), 0.0)
+
+    def _route_ahead(self):
+        """The stretch of the route the robot flies before the next decision can reach it:
+        (polyline from the position, commanded speed of each of its segments) [m], [m/s], or
+        None at the route's end. As far as the commanded speed goes in one batch's time (a
+        batch spent at a stop does not mean the next one will be), at least a sensor radius."""
         k = self._progress
         rest = np.vstack([self.position_xy_m, self.route_xy_m[k + 1:]])
         keep = distinct_vertices(rest)
         rest, speeds = rest[keep], self.route_speed_mps[k:][keep][:-1]
-        if len(rest) < 2 or not math.isfinite(home.energy_J):
-            return last
-        # as far as the commanded speed goes in one batch: a batch spent at a stop does not
-        # mean the next one will be
+        if len(rest) < 2:
+            return None
         reach_m = self._intake.last_batch_s * float(np.max(speeds[:1], initial=0.0))
         ahead = cut_path(rest, max(reach_m, self.ctx.scenario.mission.sensor_radius_m))
-        if len(ahead) < 2:
-            return last
-        stretch = path_energy(self.online_model, self.ctx.world, ahead, speeds[:len(ahead) - 1],
-                              self.conditions_now).total_J
-        then = self._return_home(ahead[-1])
-        dearer = (then.energy_J + then.reserve_J) - (home.energy_J + home.reserve_J)
-        return float(stretch) + max(float(dearer), 0.0)
+        return (ahead, speeds[:len(ahead) - 1]) if len(ahead) >= 2 else None
+
+    def _stretch_J(self, xy, speeds) -> float:
+        """Online-model energy of driving ``xy`` at ``speeds`` under the conditions now [J]."""
+        return float(path_energy(self.online_model, self.ctx.world, xy, speeds,
+                                 self.conditions_now).total_J)
+
+    def homeward_xy_m(self) -> np.ndarray | None:
+        """What a robot told to return home should drive [m]: in closed loop, the route ahead
+        as far as the energy left still pays for it, then the way home from its end;
+        otherwise (or when none of it fits) ``way_home_xy_m``. None when no way is found.
+
+        The live check turns the robot home while the homing margin still covers the batch
+        it would fly before the next decision; what that margin holds is spent on the stretch
+        of route the decision looked at (``_route_ahead``): of the stretch's cuts at
+        ``HOMEWARD_CUTS`` even fractions, the longest ``s`` with
+
+            E_used + E(stretch to s) + E_home(s) + reserve(E(stretch) + E_home(s)) <= E_avail
+
+        (online model; the reserve is the return reserve of ``_return_home`` with the
+        stretch's energy added to the return's and its relative spread applied to it), then
+        the way home from ``s``; a cut whose stretch leaves the free space is not taken. The
+        route flown after the turn thus keeps the live check's own guarantee at its end,
+        where the robot would have been told to turn."""
+        ahead = self._route_ahead() if self.closed_loop else None
+        if ahead is None:
+            return self.way_home_xy_m()
+        xy, speeds = ahead
+        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        spare = self.energy_available_J - self.energy_used_J
+        for share in np.arange(HOMEWARD_CUTS, 0, -1) / HOMEWARD_CUTS:
+            part = cut_path(xy, share * length)
+            # the stretch starts at the reported position, off the route by the tracking
+            # error: its join to the route must keep the map's clearance too
+            if len(part) < 2 or not self.ctx.world.segments_free(part[:-1], part[1:]).all():
+                continue
+            if self._homeward_need_J(part, speeds) <= spare:
+                back = self._way_home_from(part[-1])
+                if back is not None:
+                    return np.vstack([part, back[1:]])
+        return self.way_home_xy_m()
+
+    def _homeward_need_J(self, part, speeds) -> float:
+        """Energy a homeward route needs [J]: the stretch ``part`` (from the position, at the
+        first of ``speeds``), the way home from its end and the return reserve for both
+        (``homeward_xy_m``); inf when no way home is found from its end."""
+        then = self._return_home(part[-1])
+        if not math.isfinite(then.energy_J):
+            return math.inf
+        stretch = self._stretch_J(part, speeds[:len(part) - 1])
+        sd = math.hypot(then.sd_J, self._return_relative_spread() * stretch)
+        return stretch + then.energy_J + float(reserve_from(self.ctx.scenario).return_only_J(
+            stretch + then.energy_J, sd**2, self.energy_available_J))
 
     def _position_where(self) -> str:
         """"free" where the map allows the robot to be (``World.is_free``), else
@@ -348,12 +397,15 @@ class MissionSession:
 
     def way_home_xy_m(self) -> np.ndarray | None:
         """The way home the decision costs, from the position (the roadmap's best return,
-        joined straight): what a robot told to return home should drive [m]; None when no
-        way is found."""
+        joined straight) [m]; None when no way is found."""
+        return self._way_home_from(self.position_xy_m)
+
+    def _way_home_from(self, xy) -> np.ndarray | None:
+        """The roadmap's best return from ``xy`` with the online model [m], or None."""
         reach, tree = self._reach()
         exact = replace(reach.exact, model=self.online_model, world=self.ctx.world,
                         conditions=self.conditions_now)
-        return way_home(replace(reach, exact=exact), self.position_xy_m, tree)
+        return way_home(replace(reach, exact=exact), tuple(float(v) for v in xy), tree)
 
     def _return_home(self, xy=None) -> Home:
         """Best roadmap return from the position (or ``xy``; free: ``homing_state`` asks only
@@ -375,10 +427,15 @@ class MissionSession:
         driven = drive(exact, back, exact.speed_mps)
         energy = float(driven.energy_J[-1])
         var = float(model.energy_variance_J2(driven.gradient[-1]))
-        spread = max(self._relative_spread(), self._return_spread_floor()) * energy
+        spread = self._return_relative_spread() * energy
         sd = math.sqrt(max(var, 0.0) + spread**2)
         res = float(reach.reserve.return_only_J(energy, sd**2, self.energy_available_J))
         return Home(energy, res, sd)
+
+    def _return_relative_spread(self) -> float:
+        """Relative spread taken for the energy of the way home beyond its coefficient part
+        [-]: the estimator's own, never below ``_return_spread_floor``."""
+        return max(self._relative_spread(), self._return_spread_floor())
 
     def _return_spread_floor(self) -> float:
         """Least relative spread of the way home's energy a closed loop assumes [-]: the
