@@ -2,7 +2,8 @@
 accelerated time, for trying ``watch`` on one machine with no autopilot installed.
 
 What it does: it sits on the ground at home (telemetry flowing, motors off) until it hears
-a ground station or ``takeoff_after_s`` passes, then flies the plan's tour under the truth
+a ground station report or command (a mission download does not count: the watch is not
+ready yet) or ``takeoff_after_s`` passes, then flies the plan's tour under the truth
 (``sim.simulator.simulate``; a heavier truth than the scenario makes the battery run short)
 and sends, per simulated sample, ``GLOBAL_POSITION_INT``, ``LOCAL_POSITION_NED`` and
 ``BATTERY_STATUS``, and once a simulated second ``HEARTBEAT``, ``SYS_STATUS``, the wind
@@ -53,7 +54,7 @@ class VehicleOptions:
     firmware : "px4" (``WIND_COV``) or "ardupilot" (``WIND``)
     voltage_V : the pack voltage reported [V]
     takeoff_after_s : wall seconds on the ground before take-off when no ground station
-        speaks first
+        speaks first (a report or a command: a mission download does not count)
     linger_s : wall seconds of telemetry after landing (or stranding) before it stops
     refuse_rtl : the first this many return-to-launch commands are answered
         "temporarily rejected" (a busy autopilot), the next ones accepted
@@ -353,7 +354,9 @@ class FakeVehicle:
             kind = msg.get_type()
             if kind == "BAD_DATA":
                 continue
-            self.heard_gcs = True
+            # a ground station's report or command: it is watching (a mission download
+            # alone comes before the watch is ready)
+            self.heard_gcs |= not kind.startswith("MISSION_")
             handler = getattr(self, f"_on_{kind.lower()}", None)
             if handler is not None:
                 handler(msg)

@@ -147,8 +147,8 @@ class TelemetryReader:
     # --- position ----------------------------------------------------------------------
     def _on_global_position_int(self, msg) -> None:
         self._global_seen = True
-        x, y = latlon_to_xy(self.origin, msg.lat / 1e7, msg.lon / 1e7)
-        self._sample(msg.time_boot_ms, float(x), float(y))
+        # placed on the map per batch (``pop``): the conversion is vectorised
+        self._sample(msg.time_boot_ms, msg.lat / 1e7, msg.lon / 1e7, geodetic=True)
 
     def _on_local_position_ned(self, msg) -> None:
         if self._global_seen:  # the global position is the one placed by the origin
@@ -163,7 +163,8 @@ class TelemetryReader:
     def _on_home_position(self, msg) -> None:
         self.home_ned = (float(msg.x), float(msg.y))
 
-    def _sample(self, time_boot_ms: int, x: float, y: float) -> None:
+    def _sample(self, time_boot_ms: int, x: float, y: float, geodetic: bool = False) -> None:
+        """A sample at (x, y) [m], or at latitude x, longitude y [deg] when ``geodetic``."""
         b = self.battery
         if b.voltage_V is None or b.current_A is None:
             self.tell("battery_unknown", "no battery voltage and current yet: positions "
@@ -173,7 +174,8 @@ class TelemetryReader:
         if t is None:
             return
         self._t_last = t
-        row = {"t_s": t, "x_m": x, "y_m": y, "voltage_V": b.voltage_V, "current_A": b.current_A}
+        row = {"t_s": t, "x_m": x, "y_m": y, "voltage_V": b.voltage_V, "current_A": b.current_A,
+               "_geodetic": geodetic}
         if b.soc is not None:
             row["soc"] = b.soc
         if self.wind is not None:
@@ -225,6 +227,13 @@ class TelemetryReader:
         """The samples made since the last call and their arrival times."""
         rows, arrived = self.samples, self.arrived
         self.samples, self.arrived = [], []
+        placed = [r for r in rows if r.pop("_geodetic")]
+        if placed:
+            lat = np.array([r["x_m"] for r in placed], float)
+            lon = np.array([r["y_m"] for r in placed], float)
+            x, y = latlon_to_xy(self.origin, lat, lon)
+            for r, xi, yi in zip(placed, np.atleast_1d(x), np.atleast_1d(y)):
+                r["x_m"], r["y_m"] = float(xi), float(yi)
         return rows, arrived
 
 
@@ -313,7 +322,7 @@ class Watch:
 
     def _log(self, record: dict) -> None:
         if self.write_log is not None:
-            self.write_log({"wall_s": round(self.clock(), 3), **record})
+            self.write_log({"unix_time_s": round(time.time(), 3), **record})
 
     # --- the link ------------------------------------------------------------------------
     def take(self, msg) -> None:
@@ -511,11 +520,16 @@ def live_line(decision, pnr_s, pnr_m) -> str:
             f"{_num(decision.energy_used_J)} J")
 
 
+DRAIN_S = 0.1
+"""Longest wall time spent reading queued messages before a decision [s]: a link that
+delivers faster than the watch reads still gets a decision this often."""
+
+
 def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
-              stop_when=None, poll_s: float = 0.02, max_batch: int = 10_000) -> None:
+              stop_when=None, poll_s: float = 0.02, drain_s: float = DRAIN_S) -> None:
     """Read the link and tick the watch until ``stop_after_s`` wall seconds pass or
-    ``stop_when()`` is true: a wait of at most ``poll_s`` for the first message, then every
-    message already queued (at most ``max_batch``), then one tick."""
+    ``stop_when()`` is true: a wait of at most ``poll_s`` for the first message, then the
+    messages already queued for at most ``drain_s``, then one tick."""
     start = time.monotonic()
     while True:
         if stop_after_s is not None and time.monotonic() - start >= stop_after_s:
@@ -523,10 +537,11 @@ def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
         if stop_when is not None and stop_when():
             return
         msg = link.recv_match(blocking=True, timeout=poll_s)
-        n = 0
-        while msg is not None and n < max_batch:
+        until = time.monotonic() + drain_s
+        while msg is not None:
             watch.take(msg)
-            n += 1
+            if time.monotonic() >= until:
+                break
             msg = link.recv_match(blocking=False)
         watch.tick()
 
@@ -610,7 +625,6 @@ def plan_from_items(ctx, home, items):
     """A closed-loop plan of a downloaded mission: its waypoints at their commanded speeds
     (the scenario's cruise speed where none is given). ``home`` = (lat, lon, alt AMSL)."""
     from orange_plan.export.missions_in import mission_from_items
-    from orange_plan.planning.plan import Plan
 
     origin = ctx.world.map.origin
     mission = mission_from_items(home, items, origin, "the vehicle's mission")
@@ -619,5 +633,14 @@ def plan_from_items(ctx, home, items):
         xy = np.vstack([xy, ctx.world.home_xy_m])
     speed = np.array([w.speed_mps or ctx.cruise_speed_mps for w in mission.waypoints]
                      + [ctx.cruise_speed_mps] * (len(xy) - len(mission.waypoints)), float)
+    return route_plan(xy, speed)
+
+
+def route_plan(xy_m, speed_mps):
+    """A route as a plan without planned margins (a closed loop does not read them)."""
+    from orange_plan.planning.plan import Plan
+
+    xy = np.asarray(xy_m, float)
     zeros = np.zeros(len(xy))
-    return Plan(xy, zeros, speed, zeros, zeros, zeros, zeros, np.empty((0, 2)), None, {})
+    return Plan(xy, zeros, np.asarray(speed_mps, float), zeros, zeros, zeros, zeros,
+                np.empty((0, 2)), None, {})
