@@ -14,6 +14,7 @@ from types import SimpleNamespace
 
 import pytest
 from conftest import REPO, run_cli
+from test_json_docs import compare
 
 from orange_plan.export.autopilot import enu_to_geodetic
 from orange_plan.planning.session import Decision
@@ -372,6 +373,20 @@ def test_watch_sends_a_heavy_vehicle_home_in_time_and_without_it_the_vehicle_str
     assert vehicle["distance_from_home_m"] < 1.0 and vehicle["energy_left_J"] > 0
     decisions = [r for r in records if r["kind"] == "decision"]
     assert decisions[-1]["energy_used_J"] == pytest.approx(vehicle["energy_used_J"], rel=0.05)
+    # every key printed is in docs/json.md
+    compare("watch", watch)
+    compare("fake-vehicle", vehicle)
+    for record in records:
+        compare("watch --json-log", record)
+
+
+def test_bench_watch_measures_how_far_decisions_lag_the_telemetry():
+    code, out, err = run_cli("bench", "watch", "--duration-s", 4, "--json")
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["decisions"] > 10 and result["rate_Hz"] == 10.0
+    assert 0 < result["lag_median_s"] <= result["lag_p95_s"] <= result["lag_max_s"]
+    compare("bench watch", result)
 
 
 @pytest.mark.slow

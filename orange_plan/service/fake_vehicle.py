@@ -163,8 +163,9 @@ class FakeVehicle:
             self.sleep(min(left, 0.02))
 
     # --- the flight --------------------------------------------------------------------
-    def run(self) -> dict:
-        """Fly: ground wait, the plan (or the way home after an RTL), landing; the outcome."""
+    def run(self, stop_when=None) -> dict:
+        """Fly: ground wait, the plan (or the way home after an RTL), landing; the outcome.
+        ``stop_when()`` true ends the flight where it is (a benchmark's time is up)."""
         self._wall0 = self.clock()
         self._on_ground()
         self.state = "flying"
@@ -172,6 +173,8 @@ class FakeVehicle:
         self._takeoff_boot_s = self.boot_s()
         self.segment = self._simulate(self.xy_m, self.speed_mps, 0.0, 0.0)
         while self.state in ("flying", "returning"):
+            if stop_when is not None and stop_when():
+                break
             self._stream_one()
         self._linger()
         return self.outcome()

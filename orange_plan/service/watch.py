@@ -99,6 +99,11 @@ class TelemetryReader:
         self._global_seen = False
         self._said: dict[str, float] = {}
 
+    @property
+    def boot_last_s(self) -> float | None:
+        """The vehicle's time since boot of the newest sample taken [s]."""
+        return self._boot_last
+
     def tell(self, kind: str, text: str) -> None:
         """Say a fault, at most once per ``repeat_s`` for each kind."""
         now = self.clock()
@@ -307,7 +312,8 @@ class Watch:
         self.rtl = _Rtl()
         self.trend = _Trend()
         self.decisions = 0
-        self.latencies_s: list[float] = []
+        self.latencies_s: list[float] = []  # newest sample's arrival -> its decision [s]
+        self.followed: list[tuple] = []  # (its time since boot [s], decision's wall time)
         self.last_action: str | None = None
         self._last_line = -math.inf
         self._last_report = -math.inf
@@ -372,6 +378,7 @@ class Watch:
             return None
         latency = self.clock() - arrived[-1]
         self.latencies_s.append(latency)
+        self.followed.append((self.reader.boot_last_s, self.clock()))
         self.decisions += 1
         self.last_decision = decision
         self._report(decision, latency, len(rows))
