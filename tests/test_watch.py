@@ -217,6 +217,32 @@ def test_the_watch_does_not_block_on_a_link_that_says_nothing():
     assert time.monotonic() - start < 1.0
 
 
+def test_a_slow_decision_does_not_stop_the_link_being_read():
+    class Slow(StubSession):
+        def feed(self, rows):
+            time.sleep(0.3)
+            return super().feed(rows)
+
+    watch, *_ = make_watch(Slow())
+    queued = [battery()] + [position(5000 + 100 * i, 40 + i * 0.1, 40) for i in range(200)]
+    start, read_at = time.monotonic(), []
+
+    def recv_match(blocking=False, timeout=None):
+        """The i-th message arrives 2 ms after the one before."""
+        due = start + 0.002 * len(read_at)
+        if not queued or time.monotonic() < due:
+            if blocking:
+                time.sleep(min(timeout or 0, max(due - time.monotonic(), 0)))
+            return None
+        read_at.append(time.monotonic())
+        return queued.pop(0)
+
+    run_watch(SimpleNamespace(recv_match=recv_match), watch, stop_after_s=1.5)
+    assert len(read_at) == 201
+    gaps = [b - a for a, b in itertools.pairwise(read_at)]
+    assert max(gaps) < 0.15  # the link was read while each decision took 0.3 s
+
+
 # --- reports and return to launch ----------------------------------------------------------
 
 

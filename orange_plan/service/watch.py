@@ -32,8 +32,9 @@ How it is solved:
 * With ``rtl``, the first ``return_home`` sends ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` once; a
   ``COMMAND_ACK`` other than accepted, or none within ``ack_timeout_s``, sends it again, at
   most ``rtl_attempts`` times in all. Without ``rtl`` no command is ever sent.
-* The link is read without blocking (``run_watch``: a bounded wait, then everything queued);
-  a link silent for ``silent_s`` is said once, and its return too.
+* The link is read by a thread of its own (``run_watch``): a slow decision never leaves the
+  socket unread; decisions take the queued messages for at most ``DRAIN_S`` at a time. A
+  link silent for ``silent_s`` is said once, and its return too.
 """
 
 from __future__ import annotations
@@ -528,29 +529,73 @@ def live_line(decision, pnr_s, pnr_m) -> str:
 
 
 DRAIN_S = 0.1
-"""Longest wall time spent reading queued messages before a decision [s]: a link that
-delivers faster than the watch reads still gets a decision this often."""
+"""Longest wall time spent taking queued messages before a decision [s]: a link that
+delivers faster than the watch takes still gets a decision this often."""
+QUEUE_MAX = 100_000
+"""Messages the reading thread holds for the watch at most (~10 min of a 10 Hz vehicle's
+stream); beyond it the oldest wait in the socket and, past its buffer, are lost (said)."""
 
 
 def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
               stop_when=None, poll_s: float = 0.02, drain_s: float = DRAIN_S) -> None:
-    """Read the link and tick the watch until ``stop_after_s`` wall seconds pass or
-    ``stop_when()`` is true: a wait of at most ``poll_s`` for the first message, then the
-    messages already queued for at most ``drain_s``, then one tick."""
+    """Read the link in a thread of its own and tick the watch until ``stop_after_s`` wall
+    seconds pass or ``stop_when()`` is true.
+
+    The reading thread empties the socket whatever the decisions cost (a slow decision must
+    not let the socket's buffer overflow and lose telemetry); the caller's thread takes the
+    queued messages for at most ``drain_s`` (waiting at most ``poll_s`` for the first), then
+    ticks once.
+    """
+    import queue
+    import threading
+
+    inbox: queue.Queue = queue.Queue(maxsize=QUEUE_MAX)
+    stop = threading.Event()
+    notes: list[tuple[str, str]] = []  # what the reading thread has to say, said here
+    reader = threading.Thread(target=_read_link, args=(link, inbox, stop, notes), daemon=True,
+                              name="watch-link")
+    reader.start()
     start = time.monotonic()
-    while True:
-        if stop_after_s is not None and time.monotonic() - start >= stop_after_s:
-            return
-        if stop_when is not None and stop_when():
-            return
-        msg = link.recv_match(blocking=True, timeout=poll_s)
-        until = time.monotonic() + drain_s
-        while msg is not None:
-            watch.take(msg)
-            if time.monotonic() >= until:
-                break
-            msg = link.recv_match(blocking=False)
-        watch.tick()
+    try:
+        while not ((stop_after_s is not None and time.monotonic() - start >= stop_after_s)
+                   or (stop_when is not None and stop_when())):
+            until = time.monotonic() + drain_s
+            try:
+                msg = inbox.get(timeout=poll_s)
+                while True:
+                    watch.take(msg)
+                    if time.monotonic() >= until:
+                        break
+                    msg = inbox.get_nowait()
+            except queue.Empty:
+                pass
+            while notes:
+                watch.reader.tell(*notes.pop(0))
+            watch.tick()
+    finally:
+        stop.set()
+        reader.join(timeout=1.0)
+
+
+def _read_link(link, inbox, stop, notes: list) -> None:
+    """The reading thread: every message into ``inbox`` until ``stop`` is set; faults go to
+    ``notes`` as (kind, text) for the watch's thread to say."""
+    import queue
+
+    while not stop.is_set():
+        try:
+            msg = link.recv_match(blocking=True, timeout=0.05)
+        except OSError as exc:  # a link that fails is said; the watch goes on without it
+            notes.append(("link_error", f"the link failed to read: {exc}"))
+            stop.wait(0.5)
+            continue
+        if msg is None:
+            continue
+        try:
+            inbox.put(msg, timeout=0.5)
+        except queue.Full:
+            notes.append(("queue_full", "the watch falls behind the link: messages wait in "
+                                        "the socket"))
 
 
 def json_lines(path):
