@@ -358,7 +358,7 @@ def cli(*args) -> list[str]:
     return [sys.executable, "-m", "orange_plan.cli", *map(str, args)]
 
 
-def fly(tmp_path, *, watch_args=None, name="flight", speedup=50):
+def fly(tmp_path, *, watch_args=None, name="flight", speedup=20):
     """fake-vehicle (accelerated, truth 30 % heavier) and, if given, watch on loopback."""
     route, truth = lawnmower_csv(tmp_path / "lanes.csv"), tmp_path / "heavy.toml"
     truth.write_text(HEAVY)
@@ -417,7 +417,35 @@ def test_bench_watch_measures_how_far_decisions_lag_the_telemetry():
 
 @pytest.mark.slow
 def test_without_rtl_the_watch_reports_but_never_commands(tmp_path):
-    vehicle, watch, records = fly(tmp_path, watch_args=[], name="reports", speedup=25)
+    vehicle, watch, records = fly(tmp_path, watch_args=[], name="reports")
     assert vehicle["rtl_commands"] == 0 and vehicle["stranded"]
     assert watch["rtl_attempts"] == 0
     assert any(r["kind"] == "decision" and r["action"] == "return_home" for r in records)
+
+
+def test_a_px4_log_replayed_as_mavlink_is_watched_with_its_unknown_current_said(tmp_path):
+    from logbuilders import VOLTAGE_V, write_ulog
+
+    log_file = write_ulog(tmp_path / "flight.ulg", current_unknown_at=5)
+    port = free_udp_port()
+    replay = subprocess.Popen(
+        cli("fake-vehicle", DRONE, "--replay", log_file, "--connect",
+            f"udpout:127.0.0.1:{port}", "--speedup", 4, "--takeoff-after-s", 90,
+            "--linger-s", 1, "--json"),
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    log = tmp_path / "replay.jsonl"
+    watched = subprocess.run(
+        cli("watch", "--connect", f"udp:127.0.0.1:{port}", "--scenario", DRONE,
+            "--mission-from-vehicle", "--rtl", "--json-log", log, "--stop-after-silent-s", 2,
+            "--duration-s", 120, "--json"), cwd=REPO, capture_output=True, text=True,
+        timeout=180)
+    out, err = replay.communicate(timeout=60)
+    assert watched.returncode == 0 and replay.returncode == 0, (watched.stderr, err)
+    replayed, watch = json.loads(out), json.loads(watched.stdout)
+    assert replayed["state"] == "replayed" and replayed["samples_sent"] == replayed["samples"]
+    # every sample reached the watch: the energy it measured is the log's
+    assert watch["energy_used_J"] == pytest.approx(replayed["energy_used_J"], rel=0.02)
+    assert replayed["energy_used_J"] == pytest.approx(VOLTAGE_V * 2.0 * 10.0, rel=0.02)
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    assert any(r.get("event") == "battery_current" for r in records)
+    compare("fake-vehicle", replayed)

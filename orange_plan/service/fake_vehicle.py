@@ -322,10 +322,14 @@ class FakeVehicle:
             mav.sys_status_send(0, 0, 0, 0, round(volts * 1000), current_cA,
                                 round(100 * soc), 0, 0, 0, 0, 0, 0)
             self._send_wind(*wind)
-            hlat, hlon = self.mission.home_lat_deg, self.mission.home_lon_deg
-            mav.home_position_send(degE7(hlat), degE7(hlon),
-                                   round(self.origin.alt_m * 1000),
-                                   0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+            self._send_home()
+
+    def _send_home(self, north_m: float = 0.0, east_m: float = 0.0) -> None:
+        """HOME_POSITION: the mission's home, at (north, east) in the local frame [m]."""
+        self.link.mav.home_position_send(
+            degE7(self.mission.home_lat_deg), degE7(self.mission.home_lon_deg),
+            round(self.origin.alt_m * 1000), north_m, east_m, 0.0, [1.0, 0.0, 0.0, 0.0],
+            0.0, 0.0, 0.0)
 
     def _send_wind(self, speed_mps: float, from_deg: float) -> None:
         from orange_plan.physics.wind import wind_xy_mps

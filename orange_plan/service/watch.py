@@ -29,6 +29,8 @@ How it is solved:
 * The point of no return: where the homing margin reaches zero if it keeps falling at the
   rate it fell over the last ``PNR_WINDOW_S`` of mission time, per second and per metre
   flown (a least-squares slope); no point ahead (None) while the margin does not fall.
+* The watch sends its own ``HEARTBEAT`` once a second (a companion computer, with no
+  autopilot), as MAVLink components do.
 * With ``rtl``, the first ``return_home`` sends ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` once; a
   ``COMMAND_ACK`` other than accepted, or none within ``ack_timeout_s``, sends it again, at
   most ``rtl_attempts`` times in all. Without ``rtl`` no command is ever sent.
@@ -67,7 +69,7 @@ ACK_RESULTS = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupp
                4: "failed", 5: "in progress", 6: "cancelled"}
 SEVERITY = {"return_home": 2, "replan": 4, "continue": 6}
 """STATUSTEXT severity per action: critical, warning, info (a flag: warning)."""
-GCS_TYPE, INVALID_AUTOPILOT = 6, 8
+GCS_TYPE, INVALID_AUTOPILOT, ONBOARD_CONTROLLER = 6, 8, 18
 """A HEARTBEAT from a ground station (MAV_TYPE_GCS) or without autopilot is not the vehicle's."""
 
 
@@ -319,6 +321,7 @@ class Watch:
         self._last_line = -math.inf
         self._last_report = -math.inf
         self._last_heard = clock()
+        self._last_heartbeat = -math.inf
         self._silent = False
         self.last_decision = None
 
@@ -363,6 +366,9 @@ class Watch:
     def tick(self):
         """Feed what arrived, report, and drive the RTL exchange; the decision or None."""
         now = self.clock()
+        if now - self._last_heartbeat >= 1.0:  # a companion announces itself once a second
+            self._last_heartbeat = now
+            self.link.mav.heartbeat_send(ONBOARD_CONTROLLER, INVALID_AUTOPILOT, 0, 0, 4)
         if not self._silent and now - self._last_heard > self.opt.silent_s:
             self._silent = True
             self._event("link_silent", f"no message from the vehicle for "
