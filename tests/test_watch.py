@@ -449,3 +449,116 @@ def test_a_px4_log_replayed_as_mavlink_is_watched_with_its_unknown_current_said(
     records = [json.loads(line) for line in log.read_text().splitlines()]
     assert any(r.get("event") == "battery_current" for r in records)
     compare("fake-vehicle", replayed)
+
+
+# --- a replanned mission uploaded on the operator's word ------------------------------------
+
+
+@pytest.fixture(scope="module")
+def drone():
+    from orange_plan.context import load_context
+
+    return load_context(DRONE)
+
+
+class ReplanningSession(StubSession):
+    """Advises a replan; its copy (``from_state``) replans a short tour."""
+
+    def __init__(self, ctx):
+        super().__init__("replan")
+        self.ctx, self.adopted = ctx, []
+
+    def state_dict(self):
+        return {}
+
+    @classmethod
+    def from_state(cls, ctx, state):
+        return cls(ctx)
+
+    def replan(self):
+        from orange_plan.service.watch import route_plan
+
+        return route_plan([[30, 30], [60, 30], [60, 60], [30, 30]], [5.0] * 4)
+
+    def adopt_stored_plan(self, geojson):
+        self.adopted.append(geojson)
+
+
+def replanned(drone, answer: str):
+    watch, clock, lines, log, sent = make_watch(ReplanningSession(drone), upload=True)
+    feed(watch, [heartbeat(), battery(), position(5000, 40, 40)])
+    watch.up.worker.join(timeout=30)
+    watch.tick()
+    assert watch.up.state == "asking" and any("type y" in line for line in lines)
+    watch.answers.put(answer)
+    watch.tick()
+    return watch, clock, lines, log, sent
+
+
+def test_a_replan_is_uploaded_only_after_the_operator_says_yes_and_adopted_on_ack(drone):
+    watch, _, _, log, sent = replanned(drone, "y\n")
+    (count,) = [args for name, args in sent.calls if name == "mission_count_send"]
+    n = count[2]
+    for seq in range(n):
+        watch.take(wire(MAV.MAVLink_mission_request_int_message(255, 191, seq, 0)))
+    items = [args for name, args in sent.calls if name == "mission_item_int_send"]
+    assert [args[2] for args in items] == list(range(n))
+    assert watch.session.adopted == []  # not before the vehicle accepts
+    watch.take(wire(MAV.MAVLink_mission_ack_message(255, 191, 0, 0)))
+    assert len(watch.session.adopted) == 1
+    assert [r["event"] for r in log if r["kind"] == "event"][-1] == "upload_accepted"
+
+
+def test_a_replan_the_operator_declines_is_never_sent(drone):
+    watch, _, _, log, sent = replanned(drone, "n\n")
+    assert not [n for n in sent.names() if n.startswith("mission")]
+    assert watch.session.adopted == [] and watch.up.state == "idle"
+    assert any(r.get("event") == "upload_declined" for r in log)
+
+
+def test_an_upload_the_vehicle_does_not_answer_is_repeated_then_given_up(drone):
+    watch, clock, _, log, sent = replanned(drone, "yes\n")
+    for _ in range(3):
+        clock.now += 2.0
+        watch.tick()
+    assert sent.names().count("mission_count_send") == 3
+    assert watch.session.adopted == [] and watch.up.state == "idle"
+    assert any(r.get("event") == "upload_failed" for r in log)
+
+
+def test_without_upload_a_replan_decision_plans_nothing(drone):
+    watch, _, _, _, sent = make_watch(ReplanningSession(drone))
+    feed(watch, [heartbeat(), battery(), position(5000, 40, 40)])
+    assert watch.up.state == "idle" and watch.up.worker is None
+    assert not [n for n in sent.names() if n.startswith("mission")]
+
+
+def test_the_fake_vehicle_flies_an_uploaded_mission_from_where_it_is(drone):
+    from orange_plan.export.autopilot import build_mission
+    from orange_plan.service.fake_vehicle import FakeVehicle, VehicleOptions
+    from orange_plan.service.mavlink_link import send_mission_item
+
+    sent = Sent()
+    link = SimpleNamespace(mav=sent, recv_match=lambda **kw: None)
+    lanes = [[30, 30], [30, 170], [46, 170], [46, 30], [30, 30]]
+    vehicle = FakeVehicle(drone, lanes, [5.0] * 5, None, link, VehicleOptions(speedup=100),
+                          say=lambda line: None)
+    vehicle.state = "flying"
+    vehicle.segment = vehicle._simulate(lanes, [5.0] * 5, 0.0, 0.0)
+    vehicle.segment.k = 100  # 10 s into the flight
+    new = build_mission(drone.world, "aerial", [[30, 60], [100, 60], [100, 100], [30, 30]],
+                        [5.0] * 4, 20.0)
+    vehicle._on_mission_count(wire(MAV.MAVLink_mission_count_message(1, 1, len(new.items),
+                                                                      0), system=255))
+    for seq, item in enumerate(new.items):  # as the watch sends them (send_mission_item)
+        items = Sent()
+        send_mission_item(items, (1, 1), seq, item)
+        (args,) = [a for _, a in items.calls]
+        vehicle._on_mission_item_int(wire(MAV.MAVLink_mission_item_int_message(*args),
+                                          system=255))
+    ((ack),) = [args for name, args in sent.calls if name == "mission_ack_send"]
+    assert ack[2] == 0  # accepted
+    assert vehicle.log.uploads == 1 and vehicle.state == "flying"
+    path = vehicle.segment.frame[["x_m", "y_m"]].to_numpy(float)
+    assert path[0] == pytest.approx([30, 30 + 0.5 * 10 * 5], abs=30)  # from where it was
+    assert path[-1] == pytest.approx([30, 30], abs=0.5)

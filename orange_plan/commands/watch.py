@@ -35,6 +35,15 @@ def watch_cmd(
         "--rtl", help="Send return-to-launch when the decision is to return home (checked "
                       "by COMMAND_ACK, repeated at most --rtl-attempts times). Without it no "
                       "command is ever sent.")] = False,
+    upload: Annotated[bool, typer.Option(
+        "--upload", help="When a replan is advised, plan a new tour and upload it to the "
+                         "vehicle (mission protocol) after you confirm it on the terminal; "
+                         "never on its own.")] = False,
+    altitude_m: Annotated[float, typer.Option(
+        "--altitude-m", help="Flight altitude above home of an uploaded mission (aerial "
+                             "robots) [m].")] = 20.0,
+    firmware: Annotated[str, typer.Option(
+        "--firmware", help="Autopilot of an uploaded mission: px4 or ardupilot.")] = "px4",
     json_log: Annotated[Path | None, typer.Option(
         "--json-log", help="Write every decision and link event as JSON lines.")] = None,
     rtl_attempts: Annotated[int, typer.Option(
@@ -67,7 +76,8 @@ def watch_cmd(
     from orange_plan.service.mavlink_link import check_url, open_link
     from orange_plan.service.watch import WatchOptions
 
-    options = WatchOptions(rtl=rtl, rtl_attempts=rtl_attempts, ack_timeout_s=ack_timeout_s,
+    options = WatchOptions(rtl=rtl, upload=upload, altitude_m=altitude_m, firmware=firmware,
+                           rtl_attempts=rtl_attempts, ack_timeout_s=ack_timeout_s,
                            silent_s=silent_s)
     for value, name in ((duration_s, "--duration-s"), (stop_after_silent_s,
                                                        "--stop-after-silent-s")):
@@ -120,6 +130,7 @@ def _watch(ctx, flown, link, options, json_log, as_json, wait_s, vertices, durat
         json_lines,
         plan_from_items,
         run_watch,
+        stdin_lines,
         wait_for_vehicle,
     )
 
@@ -137,7 +148,10 @@ def _watch(ctx, flown, link, options, json_log, as_json, wait_s, vertices, durat
     session.decision()  # the way-home roadmap is built now, not on the first sample
     write, close = json_lines(json_log) if json_log is not None else (None, lambda: None)
     watch = Watch(session, ctx.world.map.origin, link, options, say=say, log=write)
-    say(f"watching on {link.address} ({'RTL armed' if options.rtl else 'reports only'})")
+    if options.upload:
+        stdin_lines(watch.answers)
+    armed = [w for w, on in (("RTL", options.rtl), ("upload", options.upload)) if on]
+    say(f"watching on {link.address} ({' and '.join(armed) + ' armed' if armed else 'reports only'})")
 
     def silent_too_long() -> bool:
         return (stop_after_silent_s is not None and watch.reader.vehicle is not None

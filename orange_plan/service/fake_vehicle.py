@@ -29,7 +29,12 @@ import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.export.autopilot import build_mission, enu_to_geodetic
-from orange_plan.service.mavlink_link import degE7, text_bytes
+from orange_plan.service.mavlink_link import (
+    degE7,
+    item_from_message,
+    send_mission_item,
+    text_bytes,
+)
 from orange_plan.sim.flight import Flown, simulate_route
 
 MAX_SPEEDUP = 1000.0
@@ -109,6 +114,7 @@ class FlightLog:
     rtl_commands: int = 0
     rtl_accepted_t_s: float | None = None
     mission_downloads: int = 0
+    uploads: int = 0
     events: list = field(default_factory=list)
 
 
@@ -225,20 +231,28 @@ class FakeVehicle:
 
     def _return_home(self) -> None:
         """Cut the flight where it is and fly the way home (RTL accepted)."""
-        seg = self.segment
-        k = max(seg.k, 1)
-        self.flown.add(seg.frame, k)
-        here = seg.frame[["x_m", "y_m"]].to_numpy(float)[k - 1]
-        t_here = seg.t0_s + float(seg.frame["t_s"].iloc[k - 1])
-        path = self._way_home(here)
+        self._fly_from_here(None, returning=True)
+
+    def _fly_from_here(self, points, returning: bool) -> None:
+        """Cut the flight where it is and fly ``points`` from here (None: the way home)."""
+        k, here, t_here = self._here()
+        self.flown.add(self.segment.frame, k)
+        path = self._way_home(here) if points is None else _distinct(np.vstack([here, points]))
         if len(path) < 2:
             self._land()
             return
         speed = np.full(len(path), self.ctx.cruise_speed_mps)
         self.segment = self._simulate(path, speed, t_here + 1.0 / self.opt.rate_Hz,
                                       self.flown.energy_drawn_J)
-        self.segment.home = True
-        self.state = "returning"
+        self.segment.home = returning
+        self.state = "returning" if returning else "flying"
+
+    def _here(self) -> tuple[int, np.ndarray, float]:
+        """(samples flown in the segment, the position [m], the flight time [s]) now."""
+        seg = self.segment
+        k = max(seg.k, 1)
+        here = seg.frame[["x_m", "y_m"]].to_numpy(float)[k - 1]
+        return k, here, seg.t0_s + float(seg.frame["t_s"].iloc[k - 1])
 
     def _way_home(self, here) -> np.ndarray:
         """Straight home when the map allows it, else the roadmap's way round."""
@@ -285,7 +299,8 @@ class FakeVehicle:
                     "distance_from_home_m": 0.0, "stranded": False, "duration_s": 0.0,
                     "rtl_commands": self.log.rtl_commands,
                     "rtl_accepted_t_s": self.log.rtl_accepted_t_s,
-                    "mission_downloads": self.log.mission_downloads}
+                    "mission_downloads": self.log.mission_downloads,
+                    "mission_uploads": self.log.uploads}
         scored = self.flown.outcome(self.ctx)
         last = np.vstack(self.flown.xy)[-1]
         return {"state": self.state, "energy_left_J": scored["energy_left_J"],
@@ -295,7 +310,8 @@ class FakeVehicle:
                 "stranded": bool(scored["stranded"]), "duration_s": scored["duration_s"],
                 "rtl_commands": self.log.rtl_commands,
                 "rtl_accepted_t_s": self.log.rtl_accepted_t_s,
-                "mission_downloads": self.log.mission_downloads}
+                "mission_downloads": self.log.mission_downloads,
+                "mission_uploads": self.log.uploads}
 
     # --- sending -----------------------------------------------------------------------
     def _send_sample(self, boot_s, xy, speed, wind, power, used, soc, latlon) -> None:
@@ -397,16 +413,59 @@ class FakeVehicle:
                                          len(self.mission.items), 0)
 
     def _on_mission_request_int(self, msg) -> None:
-        items = self.mission.items
-        if not 0 <= msg.seq < len(items):
-            return
-        it = items[msg.seq]
-        p = it.params
-        has_position = it.command in (16, 22)  # waypoint, take-off
-        x = degE7(p[4]) if has_position else 0
-        y = degE7(p[5]) if has_position else 0
-        self.link.mav.mission_item_int_send(
-            msg.get_srcSystem(), msg.get_srcComponent(), msg.seq, it.frame, it.command,
-            int(msg.seq == 0), 1, p[0], p[1], p[2], p[3], x, y, p[6], 0)
+        if 0 <= msg.seq < len(self.mission.items):
+            send_mission_item(self.link.mav, (msg.get_srcSystem(), msg.get_srcComponent()),
+                              msg.seq, self.mission.items[msg.seq])
 
     _on_mission_request = _on_mission_request_int  # the older float request
+
+    # --- mission upload: MISSION_COUNT, then MISSION_REQUEST_INT per item, MISSION_ACK ------
+    def _on_mission_count(self, msg) -> None:
+        if msg.mission_type != 0 or not 0 < msg.count <= 10_000:
+            return
+        self._upload = {"from": (msg.get_srcSystem(), msg.get_srcComponent()),
+                        "count": msg.count, "items": []}
+        self.link.mav.mission_request_int_send(*self._upload["from"], 0, 0)
+
+    def _on_mission_item_int(self, msg) -> None:
+        up = getattr(self, "_upload", None)
+        if up is None or msg.seq != len(up["items"]):
+            return
+        up["items"].append(item_from_message(msg))
+        if len(up["items"]) < up["count"]:
+            self.link.mav.mission_request_int_send(*up["from"], len(up["items"]), 0)
+            return
+        self._upload = None
+        accepted = self.state == "flying" and self._fly_uploaded(up["items"])
+        self.link.mav.mission_ack_send(*up["from"], 0 if accepted else 1, 0)  # 1: MAV_MISSION_ERROR
+
+    def _fly_uploaded(self, items) -> bool:
+        """Fly an uploaded mission from where the vehicle is; False when it cannot be read."""
+        from orange_plan.export.missions_in import mission_from_items
+
+        home = (self.mission.home_lat_deg, self.mission.home_lon_deg, self.origin.alt_m)
+        try:
+            mission = mission_from_items(home, items, self.origin, "uploaded mission")
+        except InputError as exc:
+            self.say(f"mission upload refused: {exc}")
+            return False
+        points = [(w.x_m, w.y_m) for w in mission.waypoints[1:]]  # [0] is home
+        if mission.returns_home:
+            points.append(tuple(self.home_xy))
+        path = _distinct(np.vstack([self._here()[1], points]))
+        try:
+            self.ctx.world.check_route(path, "uploaded mission")
+        except InputError as exc:
+            self.say(f"mission upload refused: {exc}")
+            return False
+        self.log.uploads += 1
+        self.say(f"new mission uploaded ({len(items)} items): flying it from here")
+        self._status(6, "mission uploaded: flying it")
+        self._fly_from_here(np.array(points, float), returning=False)
+        return True
+
+
+def _distinct(path: np.ndarray) -> np.ndarray:
+    """The path without repeated consecutive vertices."""
+    keep = np.r_[True, np.hypot(*np.diff(path, axis=0).T) > 1e-6]
+    return path[keep]

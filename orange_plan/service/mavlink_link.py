@@ -95,3 +95,22 @@ def text_bytes(text: str, size: int) -> bytes:
 def degE7(deg: float) -> int:
     """Degrees as the MAVLink integer [1e-7 deg]."""
     return round(float(deg) * 1e7)
+
+
+def send_mission_item(mav, target: tuple[int, int], seq: int, item) -> None:
+    """MISSION_ITEM_INT for an ``export.autopilot.MissionItem`` (latitude/longitude in
+    params 5 and 6 of a waypoint or take-off, as integers of 1e-7 degree)."""
+    p = item.params
+    placed = item.command in (16, 22)  # NAV_WAYPOINT, NAV_TAKEOFF
+    mav.mission_item_int_send(target[0], target[1], seq, item.frame, item.command,
+                              int(seq == 0), 1, p[0], p[1], p[2], p[3],
+                              degE7(p[4]) if placed else 0, degE7(p[5]) if placed else 0,
+                              p[6], 0)
+
+
+def item_from_message(msg):
+    """An ``export.autopilot.MissionItem`` from a MISSION_ITEM_INT message."""
+    from orange_plan.export.autopilot import MissionItem
+
+    return MissionItem(msg.command, msg.frame, (msg.param1, msg.param2, msg.param3,
+                                                msg.param4, msg.x / 1e7, msg.y / 1e7, msg.z))

@@ -8,8 +8,8 @@ local frame, ``HOME_POSITION`` at the log's first position, ``BATTERY_STATUS`` a
 (``UINT16_MAX`` voltage, ``-1`` current or remaining), and a ``HEARTBEAT`` each second. It
 starts when a ground station reports or commands (or ``takeoff_after_s`` passes). A watch places the
 flight at its map's home. The mission it serves for download is the flown track (placed the
-same way, decimated as an export would); return-to-launch is answered "denied": a recorded
-flight cannot turn.
+same way, decimated as an export would); return-to-launch is answered "denied" and a mission
+upload refused: a recorded flight cannot turn.
 """
 
 from __future__ import annotations
@@ -110,6 +110,11 @@ class UlogReplay(FakeVehicle):
             self.say("return-to-launch received: denied (a recorded flight cannot turn)")
         self.link.mav.command_ack_send(msg.command, MAV_RESULT["denied"], 0, 0, *src)
 
+    def _on_mission_count(self, msg) -> None:
+        """A mission upload is refused at once (MAV_MISSION_ERROR): the flight is recorded."""
+        self.say("mission upload refused (a recorded flight cannot change)")
+        self.link.mav.mission_ack_send(msg.get_srcSystem(), msg.get_srcComponent(), 1, 0)
+
     def outcome(self) -> dict:
         """What was replayed (docs/json.md, fake-vehicle --replay)."""
         f = self.frame
@@ -120,7 +125,7 @@ class UlogReplay(FakeVehicle):
                 "duration_s": float(f["t_s"].iloc[-1] - f["t_s"].iloc[0]),
                 "energy_used_J": float(np.nansum(power * dt)),
                 "rtl_commands": self.log.rtl_commands,
-                "mission_downloads": self.log.mission_downloads}
+                "mission_downloads": self.log.mission_downloads, "mission_uploads": 0}
 
 
 def _median_dt(t) -> float:

@@ -29,6 +29,10 @@ How it is solved:
 * The point of no return: where the homing margin reaches zero if it keeps falling at the
   rate it fell over the last ``PNR_WINDOW_S`` of mission time, per second and per metre
   flown (a least-squares slope); no point ahead (None) while the margin does not fall.
+* With ``upload``, a ``replan`` decision plans a new tour on a copy of the session (a thread:
+  decisions go on), shows it, and asks the operator on the terminal; only a typed ``y``
+  uploads it (``MISSION_COUNT``, then ``MISSION_ITEM_INT`` per request, ``MISSION_ACK``), and
+  only a mission the vehicle accepted becomes the session's plan.
 * The watch sends its own ``HEARTBEAT`` once a second (a companion computer, with no
   autopilot), as MAVLink components do.
 * With ``rtl``, the first ``return_home`` sends ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` once; a
@@ -43,6 +47,8 @@ from __future__ import annotations
 
 import json
 import math
+import queue
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -252,7 +258,12 @@ class WatchOptions:
     Attributes
     ----------
     rtl : send return-to-launch when the decision is ``return_home``
-    rtl_attempts : most return-to-launch commands sent before giving up [-]
+    upload : on a ``replan`` decision, plan a new tour and, once the operator confirms it
+        on the terminal, upload it with the mission protocol
+    altitude_m, firmware : the flight altitude above home [m] and the autopilot
+        ("px4" or "ardupilot") of an uploaded mission (``export.autopilot.build_mission``)
+    rtl_attempts : most return-to-launch commands (and mission uploads) sent before giving
+        up [-]
     ack_timeout_s : wall seconds to wait for a COMMAND_ACK before sending again
     silent_s : wall seconds without a message after which the link is said silent
     line_every_s : wall seconds between live lines with the same action
@@ -260,6 +271,9 @@ class WatchOptions:
     """
 
     rtl: bool = False
+    upload: bool = False
+    altitude_m: float = 20.0
+    firmware: str = "px4"
     rtl_attempts: int = 3
     ack_timeout_s: float = 1.5
     silent_s: float = 3.0
@@ -269,6 +283,10 @@ class WatchOptions:
     def __post_init__(self):
         if not (isinstance(self.rtl_attempts, int) and 1 <= self.rtl_attempts <= 20):
             raise InputError(f"--rtl-attempts = {self.rtl_attempts!r} must be 1 to 20")
+        if self.firmware not in ("px4", "ardupilot"):
+            raise InputError(f"--firmware {self.firmware!r} must be px4 or ardupilot")
+        if not (math.isfinite(self.altitude_m) and 0 < self.altitude_m <= 10_000):
+            raise InputError(f"--altitude-m = {self.altitude_m!r} must be > 0 and <= 10000 m")
         for name, value in (("--ack-timeout-s", self.ack_timeout_s),
                             ("--silent-s", self.silent_s)):
             if not (math.isfinite(value) and 0 < value <= 3600):
@@ -282,6 +300,24 @@ class _Rtl:
     attempts: int = 0
     sent_at: float | None = None
     state: str = "idle"  # idle -> waiting -> accepted | failed
+
+
+REPLAN_PAUSE_S = 60.0
+"""Wall seconds after an upload (accepted, declined or failed) before another is offered."""
+
+
+@dataclass
+class _Upload:
+    """The replan offered for upload: idle -> planning -> asking -> uploading -> idle."""
+
+    state: str = "idle"
+    plan: object = None
+    items: tuple = ()
+    attempts: int = 0
+    sent_at: float = 0.0
+    not_before: float = -math.inf
+    worker: object = None
+    result: list = field(default_factory=list)  # the worker's (plan, items) or error text
 
 
 @dataclass
@@ -313,6 +349,8 @@ class Watch:
         self.reader = TelemetryReader(origin, tuple(session.ctx.world.home_xy_m), self._event,
                                       clock)
         self.rtl = _Rtl()
+        self.up = _Upload()
+        self.answers = queue.Queue()  # the operator's lines (``stdin_lines``)
         self.trend = _Trend()
         self.decisions = 0
         self.latencies_s: list[float] = []  # newest sample's arrival -> its decision [s]
@@ -343,6 +381,8 @@ class Watch:
         self._heard()
         if kind == "COMMAND_ACK":
             self._on_ack(msg)
+        elif kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
+            self._on_mission(msg)
         elif kind == "STATUSTEXT" and msg.get_srcSystem() == self._vehicle_system():
             self._event("vehicle_text", str(msg.text).strip("\x00"))
         else:
@@ -375,6 +415,8 @@ class Watch:
                                        f"{now - self._last_heard:.1f} s; the last decision "
                                        "stands until telemetry returns")
         self._rtl_timeouts(now)
+        if self.opt.upload:
+            self._upload_progress(now)
         rows, arrived = self.reader.pop()
         if not rows:
             return None
@@ -391,6 +433,9 @@ class Watch:
         self._report(decision, latency, len(rows))
         if decision.action == "return_home" and self.opt.rtl and self.rtl.state == "idle":
             self._send_rtl()
+        if (self.opt.upload and decision.action == "replan" and self.up.state == "idle"
+                and self.rtl.state == "idle" and self.clock() >= self.up.not_before):
+            self._start_replan()
         return decision
 
     # --- reports ------------------------------------------------------------------------
@@ -489,6 +534,81 @@ class Watch:
             self._event("rtl_failed", f"return-to-launch not accepted after {rtl.attempts} "
                                       "attempts: bring the vehicle home by hand")
 
+    # --- a replanned mission, uploaded on the operator's word ------------------------------
+    def _start_replan(self) -> None:
+        """Plan a new tour on a copy of the session, in a thread: decisions go on meanwhile,
+        and the session adopts the tour only once the vehicle has accepted it."""
+        state = self.session.state_dict()
+        self.up = _Upload(state="planning", not_before=self.up.not_before)
+        self._event("replanning", "a replan is advised: planning a new tour (decisions go on)")
+        self.up.worker = threading.Thread(target=_replan_copy, daemon=True, args=(
+            self.session, state, self.opt, self.up.result), name="watch-replan")
+        self.up.worker.start()
+
+    def _upload_progress(self, now: float) -> None:
+        up = self.up
+        if up.state == "planning" and up.result:
+            self._offer(up.result[0])
+        elif up.state == "asking":
+            try:
+                answer = self.answers.get_nowait()
+            except queue.Empty:
+                return
+            if answer.strip().lower() in ("y", "yes"):
+                self._send_count()
+            else:
+                self._upload_done("upload_declined", "the operator kept the vehicle's mission")
+        elif up.state == "uploading" and now - up.sent_at > self.opt.ack_timeout_s:
+            if up.attempts < self.opt.rtl_attempts:
+                self._send_count()
+            else:
+                self._upload_done("upload_failed", f"the vehicle did not take the mission "
+                                                   f"after {up.attempts} attempts")
+
+    def _offer(self, result) -> None:
+        if isinstance(result, str):
+            self._upload_done("replan_failed", result)
+            return
+        plan, items = result
+        self.up.plan, self.up.items, self.up.state = plan, items, "asking"
+        self._event("upload_asked", f"new tour: {len(plan.xy_m)} vertices, "
+                                    f"{float(plan.summary.get('coverage_m2', 0.0)):,.0f} m^2 "
+                                    f"more to sense, {len(items)} mission items")
+        self.say_line("upload it to the vehicle? type y and Enter (anything else keeps the "
+                      "vehicle's mission)")
+
+    def _send_count(self) -> None:
+        up, vehicle = self.up, self.reader.vehicle
+        if vehicle is None:
+            self._upload_done("upload_failed", "no vehicle HEARTBEAT heard")
+            return
+        up.attempts += 1
+        up.state, up.sent_at = "uploading", self.clock()
+        self.link.mav.mission_count_send(vehicle[0], vehicle[1], len(up.items), 0)
+        self._event("upload_sent", f"mission upload started: {len(up.items)} items "
+                                   f"(attempt {up.attempts})")
+
+    def _on_mission(self, msg) -> None:
+        from orange_plan.service.mavlink_link import send_mission_item
+
+        up = self.up
+        if up.state != "uploading" or msg.get_srcSystem() != self._vehicle_system():
+            return
+        up.sent_at = self.clock()
+        if msg.get_type() == "MISSION_ACK":
+            if msg.type == 0:  # MAV_MISSION_ACCEPTED: the vehicle flies it; so does the session
+                self.session.adopt_stored_plan(up.plan.to_geojson())
+                self._upload_done("upload_accepted", "the vehicle accepted the new mission")
+            else:
+                self._upload_done("upload_refused", f"the vehicle refused the mission "
+                                                    f"(MAV_MISSION_RESULT {msg.type})")
+        elif 0 <= msg.seq < len(up.items):
+            send_mission_item(self.link.mav, self.reader.vehicle, msg.seq, up.items[msg.seq])
+
+    def _upload_done(self, kind: str, text: str) -> None:
+        self.up = _Upload(not_before=self.clock() + REPLAN_PAUSE_S)
+        self._event(kind, text)
+
     # --- summary -------------------------------------------------------------------------
     def summary(self) -> dict:
         """What the watch saw and did (docs/json.md, watch)."""
@@ -534,6 +654,37 @@ def live_line(decision, pnr_s, pnr_m) -> str:
             f"{_num(decision.energy_used_J)} J")
 
 
+def _replan_copy(session, state: dict, options, result: list) -> None:
+    """The replanning thread: a copy of the session rebuilt from its events replans, and the
+    new tour is exported as mission items; ``result`` gets (plan, items) or the reason."""
+    from orange_plan.errors import OrangeError
+    from orange_plan.export.autopilot import build_mission
+
+    try:
+        ctx = session.ctx
+        copy = type(session).from_state(ctx, state)
+        plan = copy.replan()
+        altitude = options.altitude_m if ctx.scenario.robot.kind == "aerial" else None
+        items = build_mission(ctx.world, ctx.scenario.robot.kind, plan.xy_m, plan.speed_mps,
+                              altitude, options.firmware, "the replanned tour").items
+        result.append((plan, items))
+    except OrangeError as exc:
+        result.append(f"no new tour to upload: {exc}")
+
+
+def stdin_lines(answers: queue.Queue, stream=None) -> threading.Thread:
+    """A thread putting each line typed on the terminal into ``answers``."""
+    import sys
+
+    def read():
+        for line in stream or sys.stdin:
+            answers.put(line)
+
+    thread = threading.Thread(target=read, daemon=True, name="watch-stdin")
+    thread.start()
+    return thread
+
+
 DRAIN_S = 0.1
 """Longest wall time spent taking queued messages before a decision [s]: a link that
 delivers faster than the watch takes still gets a decision this often."""
@@ -552,9 +703,6 @@ def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
     queued messages for at most ``drain_s`` (waiting at most ``poll_s`` for the first), then
     ticks once.
     """
-    import queue
-    import threading
-
     inbox: queue.Queue = queue.Queue(maxsize=QUEUE_MAX)
     stop = threading.Event()
     notes: list[tuple[str, str]] = []  # what the reading thread has to say, said here
@@ -586,7 +734,6 @@ def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
 def _read_link(link, inbox, stop, notes: list) -> None:
     """The reading thread: every message into ``inbox`` until ``stop`` is set; faults go to
     ``notes`` as (kind, text) for the watch's thread to say."""
-    import queue
 
     while not stop.is_set():
         try:
@@ -646,8 +793,8 @@ def download_mission(link, vehicle: tuple[int, int], timeout_s: float = 2.0,
     MISSION_COUNT, MISSION_REQUEST_INT / MISSION_ITEM_INT per item, MISSION_ACK), each
     request repeated at most ``attempts`` times. InputError when the vehicle does not answer.
     """
-    from orange_plan.export.autopilot import MissionItem
     from orange_plan.limits import MAX_MISSION_WAYPOINTS
+    from orange_plan.service.mavlink_link import item_from_message
 
     sysid, compid = vehicle
 
@@ -672,9 +819,7 @@ def download_mission(link, vehicle: tuple[int, int], timeout_s: float = 2.0,
     for seq in range(count):
         it = ask(lambda s=seq: link.mav.mission_request_int_send(sysid, compid, s, 0),
                  "MISSION_ITEM_INT", lambda m, s=seq: m.seq == s)
-        lat, lon = it.x / 1e7, it.y / 1e7
-        items.append(MissionItem(it.command, it.frame, (it.param1, it.param2, it.param3,
-                                                        it.param4, lat, lon, it.z)))
+        items.append(item_from_message(it))
     link.mav.mission_ack_send(sysid, compid, 0, 0)  # MAV_MISSION_ACCEPTED
     return items
 
