@@ -12,6 +12,7 @@ import sys
 import time
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from conftest import REPO, run_cli
 from test_json_docs import compare
@@ -562,3 +563,43 @@ def test_the_fake_vehicle_flies_an_uploaded_mission_from_where_it_is(drone):
     path = vehicle.segment.frame[["x_m", "y_m"]].to_numpy(float)
     assert path[0] == pytest.approx([30, 30 + 0.5 * 10 * 5], abs=30)  # from where it was
     assert path[-1] == pytest.approx([30, 30], abs=0.5)
+
+
+@pytest.mark.slow
+def test_an_upload_confirmed_on_the_terminal_is_flown_by_the_vehicle(tmp_path, drone):
+    """Loopback: a heavier vehicle than its plan file's, so a replan is advised; the
+    operator types y."""
+    from orange_plan.service.watch import route_plan
+
+    lanes, truth = lawnmower_csv(tmp_path / "lanes.csv"), tmp_path / "heavy.toml"
+    truth.write_text(HEAVY)
+    xy = np.loadtxt(lanes, delimiter=",", skiprows=1)
+    plan = route_plan(xy, np.full(len(xy), 5.0))
+    plan.summary["planned_by"] = "test"  # a plan file: flown open loop, its margins checked
+    plan_file = tmp_path / "plan.geojson"
+    plan_file.write_text(json.dumps(plan.to_geojson()))
+    port = free_udp_port()
+    vehicle = subprocess.Popen(
+        cli("fake-vehicle", DRONE, lanes, "--connect", f"udpout:127.0.0.1:{port}",
+            "--truth", truth, "--speedup", 5, "--takeoff-after-s", 90, "--linger-s", 1, "--json"),
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    log = tmp_path / "upload.jsonl"
+    watch = subprocess.Popen(
+        cli("watch", "--connect", f"udp:127.0.0.1:{port}", "--scenario", DRONE, "--plan",
+            plan_file, "--upload", "--json-log", log, "--stop-after-silent-s", 2,
+            "--duration-s", 240, "--vertices", 300),
+        cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    deadline = time.monotonic() + 200
+    while time.monotonic() < deadline and not (log.exists() and "upload_asked" in
+                                               log.read_text()):
+        time.sleep(0.5)
+    assert watch.poll() is None, "the watch ended before it offered an upload"
+    watch.stdin.write("y\n")
+    watch.stdin.flush()
+    _, werr = watch.communicate(timeout=260)
+    out, err = vehicle.communicate(timeout=60)
+    assert watch.returncode == 0 and vehicle.returncode == 0, (werr, err)
+    events = [json.loads(line).get("event") for line in log.read_text().splitlines()]
+    assert "upload_sent" in events and "upload_accepted" in events
+    assert json.loads(out)["mission_uploads"] == 1
