@@ -376,7 +376,8 @@ def _register_commands() -> None:
 COMMAND_MODULES = [
     "range_", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose", "bench",
     "bench_identify", "bench_replan", "bench_sweep", "bench_concealed", "bench_diagnose", "export",
-    "check", "bench_check", "serve", "report", "sweep", "bench_flights",
+    "check", "bench_check", "serve", "report", "sweep", "bench_flights", "watch", "fake_vehicle",
+    "bench_watch",
 ]
 """One module per command in orange_plan/commands/, registered in this order."""
 

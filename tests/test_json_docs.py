@@ -137,6 +137,11 @@ COVERED_ELSEWHERE = {
                           "test_bench_calibration_reports_offline_and_online_on_real_runs"),
     "report paper": "test_report.py::test_reduced_report_is_complete_and_in_range",
     "bench flights": "test_wadl.py::test_bench_flights_runs_on_three_flights",
+    "watch": ("test_watch.py::"
+              "test_watch_sends_a_heavy_vehicle_home_in_time_and_without_it_the_vehicle_strands"),
+    "fake-vehicle": ("test_watch.py::"
+                     "test_a_px4_log_replayed_as_mavlink_is_watched_with_its_unknown_current_said"),
+    "bench watch": "test_watch.py::test_bench_watch_measures_how_far_decisions_lag_the_telemetry",
 }
 """Commands whose ``--json`` is costly to produce: the test that already runs each compares
 its output with docs/json.md (``compare``) instead of running it again here."""

@@ -10,7 +10,7 @@ import sys
 from conftest import REPO
 
 HEAVY = ("scipy", "casadi", "ompl", "matplotlib", "pandas", "pyarrow", "rasterio", "pyulog",
-         "rosbags", "shapely", "numba")
+         "rosbags", "shapely", "numba", "pymavlink")
 
 
 def loaded_after(code: str) -> set[str]:
