@@ -19,7 +19,8 @@ candidate's columns ``C`` (its ``power_jacobian`` columns at coefficient 0, or, 
 that are not a term, a payload step or a wind vector, columns built here) form one linear
 design. The exception is ``regen``, whose column is the negative part of the force of the
 model it joins: a fit with it puts the chosen terms inside the model (``_fit_with_regen``).
-A ``drift`` is a family of shapes of time, the shape chosen by BIC (``_drift_effect``).
+A ``drift`` is a family of shapes of time, the shape chosen by BIC (``_drift_effect``); its
+step only where a payload's step would not be the same column (``_steps_are_payloads``).
 Forward selection: each round, every candidate not yet chosen is refitted *together
 with* the baseline terms (bounded least squares: coefficients keep their physical sign) on
 blocked folds (interleaved time blocks: residuals are autocorrelated, so a fit judged on
