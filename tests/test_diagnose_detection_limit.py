@@ -31,9 +31,10 @@ from orange_plan.identify.diagnose import (
 )
 from orange_plan.sim.concealed import concealed_case
 
-LINEAR = ("drift", "battery_temperature", "turning", "inertia")
+LINEAR = ("battery_temperature", "turning", "inertia")
 """Candidates of one coefficient whose column does not depend on the residual (a payload's
-change time and a wind are estimated from it, so an added step or wind moves them too)."""
+change time, a drift's shape and a wind are estimated from it, so an added step, trend or
+wind moves them too)."""
 
 
 @cache
@@ -79,16 +80,15 @@ def test_each_limits_worth_of_effect_adds_one_t_bar(name, k):
         assert t[1] - t[0] >= MIN_T * 0.98, t
     else:
         # exact when the null's own fit is off its bound (turning); held at 0, its residual
-        # differs from the injected fits' and so does its autocorrelation time (drift: 83.1
-        # against 82.4 samples, the t step 4.02)
+        # differs from the injected fits' and so does its autocorrelation time
         assert t[1] - t[0] == pytest.approx(MIN_T, rel=0.02), t
 
 
 def test_twice_the_limit_passes_the_t_bar_a_third_does_not():
     d = _null().design
-    cand = _candidate("drift")
+    cand = _candidate("turning")
     fit, trial = _judged(d, cand)
-    unit = _unit(fit, fit.owned("drift")[0])
+    unit = _unit(fit, fit.owned("turning")[0])
     t = {k: _judged(_with_power(d, k * trial.detectable_W * unit), cand)[1].t_max
          for k in (2.0, 1.0 / 3.0)}
     assert t[2.0] >= MIN_T > t[1.0 / 3.0], t

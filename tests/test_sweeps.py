@@ -225,8 +225,8 @@ def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_fac
     fresh = prepare_reach(ctx, n_vertices=250, seed=1)
     other = driven_home(fresh)
 
-    def sensed(xy):
-        return score_route(ctx, fresh.fast, other, setup.grid, xy, left, limit, 0.5).closed_m2
+    def sensed(xy):  # under the same closed-loop rule the sweep was chosen by
+        return score_route(flown, fresh.fast, other, setup.grid, xy, left, limit, 0.5).closed_m2
 
     assert sensed(route) >= 0.9 * sensed(lawn) - 2 * setup.grid.cell_area_m2
 
