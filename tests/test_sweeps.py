@@ -186,7 +186,7 @@ def worlds(draw):
 
 
 @pytest.mark.timeout(280)
-@settings(max_examples=6, deadline=None,
+@settings(max_examples=6, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(spec=worlds())
 def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_factory, spec):

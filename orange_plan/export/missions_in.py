@@ -383,9 +383,10 @@ def _placed(items, origin, source: str) -> dict[int, tuple[float, float]]:
 # --- map-frame and GeoJSON missions -------------------------------------------------------------
 
 
-def read_route_csv(path: Path) -> Mission:
-    """A route CSV (``ROUTE_COLUMNS``): the first row is home; a route that does not end at
-    home gets the way home added (``returns_home``)."""
+def read_route_columns(path: Path, optional: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The columns of a route CSV as float arrays: ``x_m``, ``y_m`` (required) and each of
+    ``optional`` (all NaN where the file lacks it). The one reader of route CSV files, for
+    ``check`` and ``simulate`` alike."""
     import pandas as pd
 
     try:
@@ -394,20 +395,28 @@ def read_route_csv(path: Path) -> Mission:
         raise InputError(f"{path}: not a readable CSV ({exc})") from None
     missing = [c for c in ("x_m", "y_m") if c not in frame.columns]
     if missing:
-        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, z_m, "
-                         "speed_mps, stay_s, corner_radius_m])" + csv_delimiter_hint(frame.columns))
-    _check_count(len(frame), str(path), "rows")
+        wanted = "".join(f", {c}" for c in optional)
+        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m"
+                         f"{'[' + wanted + ']' if wanted else ''})"
+                         + csv_delimiter_hint(frame.columns))
     try:
-        cols = {c: frame[c].to_numpy(dtype=float) if c in frame else np.full(len(frame), np.nan)
-                for c in ROUTE_COLUMNS}
+        return {c: frame[c].to_numpy(dtype=float) if c in frame else np.full(len(frame), np.nan)
+                for c in ("x_m", "y_m", *optional)}
     except ValueError:
         raise InputError(f"{path}: route columns must hold numbers") from None
+
+
+def read_route_csv(path: Path) -> Mission:
+    """A route CSV (``ROUTE_COLUMNS``): the first row is home; a route that does not end at
+    home gets the way home added (``returns_home``)."""
+    cols = read_route_columns(path, tuple(c for c in ROUTE_COLUMNS if c not in ("x_m", "y_m")))
+    _check_count(len(cols["x_m"]), str(path), "rows")
     for c in ("x_m", "y_m"):
         bad = np.flatnonzero(~np.isfinite(cols[c]))
         if bad.size:
             raise InputError(f"{path}: row {bad[0] + 1}: {c} is not a number")
     points = []
-    for i in range(len(frame)):
+    for i in range(len(cols["x_m"])):
         def opt(name, i=i):
             v = cols[name][i]
             return None if np.isnan(v) else float(v)

@@ -6,10 +6,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from orange_plan.errors import InputError
-from orange_plan.files import csv_delimiter_hint, read_json, require_file
+from orange_plan.export.missions_in import read_route_columns
+from orange_plan.files import read_json, require_file
 from orange_plan.planning.plan import read_tour
 
 PLAN_SUFFIXES = (".geojson", ".json")
@@ -88,18 +88,7 @@ def _from_plan(path: Path):
 
 
 def _from_csv(path: Path):
-    try:
-        frame = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a readable CSV ({exc})") from None
-    missing = [c for c in ("x_m", "y_m") if c not in frame.columns]
-    if missing:
-        raise InputError(f"{path}: route CSV lacks column(s) {missing} (need x_m, y_m[, speed_mps])"
-                         + csv_delimiter_hint(frame.columns))
-    try:
-        xy = frame[["x_m", "y_m"]].to_numpy(dtype=float)
-        speed = (frame["speed_mps"].to_numpy(dtype=float) if "speed_mps" in frame
-                 else np.full(len(frame), np.nan))
-    except ValueError:
-        raise InputError(f"{path}: route columns must hold numbers") from None
+    cols = read_route_columns(path, ("speed_mps",))
+    xy = np.column_stack([cols["x_m"], cols["y_m"]])
+    speed = cols["speed_mps"]
     return xy, speed
