@@ -50,6 +50,12 @@ def test_readme_opens_with_the_quick_start_and_links_the_docs():
     assert "docs/formats.md" in readme and "docs/json.md" in readme
 
 
+def test_ci_runs_the_quick_starts_test_command_verbatim():
+    test_command = QUICK_START.splitlines()[2]
+    ci_lines = (REPO / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    assert test_command in ci_lines
+
+
 def test_formats_document_every_user_file_and_the_map_origin():
     formats = (REPO / "docs" / "formats.md").read_text(encoding="utf-8")
     for needle in ("## Map", "## Scenario", "## Recording", "## Plan", "## Route CSV",
