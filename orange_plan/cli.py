@@ -27,7 +27,15 @@ except ImportError:  # pragma: no cover - older typer runs on click itself
     from click.globals import get_current_context
 
 from orange_plan import progress
-from orange_plan.errors import InputError, NamedInputError, OrangeError, plain_message
+from orange_plan.errors import (
+    InputError,
+    NamedInputError,
+    OrangeError,
+    plain_message,
+)
+from orange_plan.errors import (
+    check_range as check_range,  # re-exported: every command's number check
+)
 
 
 class OneLineErrors(TyperGroup):
@@ -222,19 +230,6 @@ def option_name(param: str) -> str:
         if p.name == param and p.opts:
             return max(p.opts, key=len)
     return "--" + param.replace("_", "-")
-
-
-def check_range(value: float | None, option: str, low: float = 0.0, high: float = math.inf,
-                low_open: bool = True) -> None:
-    """Refuse ``value`` (when given) outside ``(low, high]`` (``[low, high]`` with
-    ``low_open=False``), naming the option; NaN and infinities are refused too."""
-    if value is None:
-        return
-    above = value > low if low_open else value >= low
-    if not (math.isfinite(value) and above and value <= high):
-        bound = f"> {low:g}" if low_open else f">= {low:g}"
-        limit = "" if high == math.inf else f" and <= {high:g}"
-        raise InputError(f"{option} must be a number {bound}{limit}, got {value}")
 
 
 def default_scenario() -> Path:

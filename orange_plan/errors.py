@@ -8,6 +8,7 @@ errors are internal failures (exit code 1).
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from collections.abc import Iterable, Mapping
 
@@ -77,3 +78,16 @@ NUMPY_REPR = re.compile(r"\bnp\.(?:float|int|uint|complex|bool|str_|bytes_)\w*\(
 def plain_message(exc: BaseException | str) -> str:
     """One line for a person: whitespace collapsed, numpy's scalar wrappers dropped."""
     return NUMPY_REPR.sub(r"\1", " ".join(str(exc).split()))
+
+
+def check_range(value: float | None, option: str, low: float = 0.0, high: float = math.inf,
+                low_open: bool = True) -> None:
+    """Refuse ``value`` (when given) outside ``(low, high]`` (``[low, high]`` with
+    ``low_open=False``), naming the option; NaN and infinities are refused too."""
+    if value is None:
+        return
+    above = value > low if low_open else value >= low
+    if not (math.isfinite(value) and above and value <= high):
+        bound = f"> {low:g}" if low_open else f">= {low:g}"
+        limit = "" if high == math.inf else f" and <= {high:g}"
+        raise InputError(f"{option} must be a number {bound}{limit}, got {value}")

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from orange_plan.errors import InputError
+from orange_plan.errors import InputError, check_range
 from orange_plan.export.autopilot import build_mission, enu_to_geodetic
 from orange_plan.service.mavlink_link import (
     degE7,
@@ -77,15 +77,11 @@ class VehicleOptions:
     seed: int = 0
 
     def __post_init__(self):
-        for name, value, low, high in (
-                ("--speedup", self.speedup, 0.0, MAX_SPEEDUP), ("--rate-hz", self.rate_Hz, 0.0, 100.0),
-                ("--voltage-V", self.voltage_V, 0.0, 1000.0)):
-            if not (math.isfinite(value) and low < value <= high):
-                raise InputError(f"{name} = {value!r} must be > {low:g} and <= {high:g}")
-        for name, value in (("--takeoff-after-s", self.takeoff_after_s),
-                            ("--linger-s", self.linger_s)):
-            if not (math.isfinite(value) and 0 <= value <= 3600):
-                raise InputError(f"{name} = {value!r} must be in [0, 3600] s")
+        check_range(self.speedup, "--speedup", high=MAX_SPEEDUP)
+        check_range(self.rate_Hz, "--rate-hz", high=100.0)
+        check_range(self.voltage_V, "--voltage-V", high=1000.0)
+        check_range(self.takeoff_after_s, "--takeoff-after-s", high=3600.0, low_open=False)
+        check_range(self.linger_s, "--linger-s", high=3600.0, low_open=False)
         if self.firmware not in ("px4", "ardupilot"):
             raise InputError(f"--firmware {self.firmware!r} must be px4 or ardupilot")
 

@@ -55,8 +55,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from orange_plan.errors import InputError
-from orange_plan.export.autopilot import latlon_to_xy
+from orange_plan.errors import InputError, check_range
+from orange_plan.export.autopilot import MAX_ALTITUDE_M, latlon_to_xy
 from orange_plan.physics.wind import wind_speed_and_from
 from orange_plan.service.mavlink_link import INT_UNKNOWN, UINT16_UNKNOWN, text_bytes
 
@@ -285,12 +285,9 @@ class WatchOptions:
             raise InputError(f"--rtl-attempts = {self.rtl_attempts!r} must be 1 to 20")
         if self.firmware not in ("px4", "ardupilot"):
             raise InputError(f"--firmware {self.firmware!r} must be px4 or ardupilot")
-        if not (math.isfinite(self.altitude_m) and 0 < self.altitude_m <= 10_000):
-            raise InputError(f"--altitude-m = {self.altitude_m!r} must be > 0 and <= 10000 m")
-        for name, value in (("--ack-timeout-s", self.ack_timeout_s),
-                            ("--silent-s", self.silent_s)):
-            if not (math.isfinite(value) and 0 < value <= 3600):
-                raise InputError(f"{name} = {value!r} must be > 0 and <= 3600 s")
+        check_range(self.altitude_m, "--altitude-m", high=MAX_ALTITUDE_M)
+        check_range(self.ack_timeout_s, "--ack-timeout-s", high=3600.0)
+        check_range(self.silent_s, "--silent-s", high=3600.0)
 
 
 @dataclass
