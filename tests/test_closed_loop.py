@@ -95,8 +95,8 @@ def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
     reserve >= z_p * RETURN_SPREAD_FLOOR * discrepancy * E_home."""
     from scipy.special import ndtri
 
+    from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR
     from orange_plan.planning.session import MissionSession
-    from orange_plan.planning.session.facade import RETURN_SPREAD_FLOOR
     from orange_plan.sim.flight import simulate_route as _simulate
 
     spec = mission_specs(1, n_maps=1, width_m=60.0, height_m=45.0, n_vertices=300)[0]

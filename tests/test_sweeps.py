@@ -31,7 +31,7 @@ from orange_plan.planning.lawnmower import (
 )
 from orange_plan.planning.plan import StartState
 from orange_plan.planning.reach import prepare_reach
-from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, EnergyReserve
+from orange_plan.planning.reserve import EnergyReserve, closed_loop_return_spread
 from orange_plan.planning.sweeps import lane_orders, ordered_pieces, score_route, score_step_m
 from orange_plan.planning.tour import (
     drivable_m,
@@ -185,6 +185,22 @@ def worlds(draw):
     return dict(spec, reserve=reserve, rated_energy_Wh=draw(st.floats(0.15, 1.2)))
 
 
+def _closed_loop(ctx):
+    """``ctx`` with the return reserve the closed loop keeps, the rule sweeps are chosen by."""
+    return replace(ctx, model=ctx.model.with_discrepancy(closed_loop_return_spread(ctx.model)))
+
+
+def _assert_home_to_home(swept, ctx):
+    """The plan starts and ends at home with every margin >= 0; its closed-loop route ends at
+    home. Returns that route."""
+    home_xy = np.asarray(ctx.world.home_xy_m)
+    assert np.allclose(swept.xy_m[0], home_xy) and np.allclose(swept.xy_m[-1], home_xy)
+    assert np.all(swept.margin_J >= 0)
+    route = swept.closed_loop_route()[0]
+    assert np.allclose(route[-1], home_xy)
+    return route
+
+
 @pytest.mark.timeout(280)
 @settings(max_examples=6, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -203,11 +219,7 @@ def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_fac
     swept = sweep_tour(ctx, setup, start, t0=0.0, optimise_speed=False)
     if swept is None:
         return
-    home_xy = np.asarray(ctx.world.home_xy_m)
-    assert np.allclose(swept.xy_m[0], home_xy) and np.allclose(swept.xy_m[-1], home_xy)
-    assert np.all(swept.margin_J >= 0)
-    route = swept.closed_loop_route()[0]
-    assert np.allclose(route[-1], home_xy)
+    route = _assert_home_to_home(swept, ctx)
     assert ctx.world.segments_free(route[:-1], route[1:]).all()
 
     reach = setup.reach
@@ -216,8 +228,7 @@ def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_fac
     limit = ctx.scenario.mission.time_limit_s or math.inf
     lawn = plan_lawnmower(ctx, reach).xy_m
     # the closed loop's rule: the floor of the a-priori discrepancy kept for the return
-    flown = replace(ctx, model=ctx.model.with_discrepancy(
-        RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd))
+    flown = _closed_loop(ctx)
     own = score_route(flown, reach.fast, home, setup.grid, lawn, left, limit,
                       score_step_m(ctx), 1.05 * drivable_m(ctx, reach, limit), reach.reserve)
     assert swept.summary["closed_loop_coverage_m2"] >= own.closed_m2 - 1e-6
@@ -301,11 +312,7 @@ def test_the_plan_senses_at_least_every_sweep_whole_map_or_cell_by_cell(
     swept = sweep_tour(ctx, setup, start, t0=0.0, optimise_speed=False)
     if swept is None:
         return
-    home_xy = np.asarray(ctx.world.home_xy_m)
-    assert np.allclose(swept.xy_m[0], home_xy) and np.allclose(swept.xy_m[-1], home_xy)
-    assert np.all(swept.margin_J >= 0)
-    route = swept.closed_loop_route()[0]
-    assert np.allclose(route[-1], home_xy)
+    route = _assert_home_to_home(swept, ctx)
     true_map, radius = ctx.world.true_map, ctx.world.keep_away_m
     lines = shapely.linestrings(np.stack([route[:-1], route[1:]], axis=1))
     assert shapely.covers(true_map.boundary.buffer(-radius + 1e-6), lines).all()
@@ -313,5 +320,7 @@ def test_the_plan_senses_at_least_every_sweep_whole_map_or_cell_by_cell(
         assert (shapely.distance(true_map.keep_out, lines) >= radius - 1e-6).all()
 
     planned = swept.summary["closed_loop_coverage_m2"]
-    scores = _every_sweep_joined(ctx, setup, home, detours, lanes, left, limit, max_m)
+    # each candidate scored under the rule the planner chose by (the closed loop's reserve)
+    scores = _every_sweep_joined(_closed_loop(ctx), setup, home, detours, lanes, left, limit,
+                                 max_m)
     assert scores and planned >= max(scores) - 1e-6

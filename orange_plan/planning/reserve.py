@@ -51,6 +51,13 @@ estimator's own spread when wider): about five times the worst seen. The whole a
 discrepancy (58 % of the return) left 6-9 % of the battery unused at home."""
 
 
+def closed_loop_return_spread(model) -> float:
+    """The least relative spread [-] a closed loop takes for its way home:
+    ``RETURN_SPREAD_FLOOR`` of ``model``'s a-priori run-to-run discrepancy. The session's
+    live check keeps it, and sweeps are chosen under it, so both use this one rule."""
+    return RETURN_SPREAD_FLOOR * float(model.discrepancy_rel_sd)
+
+
 def _broadcast(values, *operands) -> np.ndarray:
     """``values`` as a new float array of the shape the operands broadcast to."""
     shape = np.broadcast_shapes(np.shape(values), *(np.shape(o) for o in operands))

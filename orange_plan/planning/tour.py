@@ -65,7 +65,7 @@ from orange_plan.planning.reach import (
     query_points,
     return_probability,
 )
-from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, reserve_from
+from orange_plan.planning.reserve import closed_loop_return_spread, reserve_from
 from orange_plan.planning.returns import DrivenReturns
 from orange_plan.planning.roadmap import EnergyField, Roadmap, add_vertices, energy_field
 
@@ -214,8 +214,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     # chosen under the rule that flies it: a closed loop keeps for its way home the floor of
     # the a-priori discrepancy (``RETURN_SPREAD_FLOOR``), not all of it; scored with all of
     # it, sweeps whose returns are short look better than they fly
-    flown = replace(ctx, model=ctx.model.with_discrepancy(
-        RETURN_SPREAD_FLOOR * ctx.model.discrepancy_rel_sd))
+    flown = replace(ctx, model=ctx.model.with_discrepancy(closed_loop_return_spread(ctx.model)))
     sweep = best_sweep(flown, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
                        longest, lanes=lanes)
     if sweep is None:

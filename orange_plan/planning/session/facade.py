@@ -21,7 +21,7 @@ from orange_plan.physics.pathcost import path_energy
 from orange_plan.planning.paths import cut_path, distinct_vertices
 from orange_plan.planning.plan import Plan, StartState, plan_from_geojson
 from orange_plan.planning.reach import prepare_reach, way_home
-from orange_plan.planning.reserve import RETURN_SPREAD_FLOOR, reserve_from
+from orange_plan.planning.reserve import closed_loop_return_spread, reserve_from
 from orange_plan.planning.session.decision import Decision, Home, HomingState, decide
 from orange_plan.planning.session.events import EventLog, check_state, replay_events
 from orange_plan.planning.session.intake import Intake, validated_batch
@@ -444,7 +444,7 @@ class MissionSession:
         for an open-loop plan, whose own reserve covers the whole trip)."""
         if not self.closed_loop:
             return 0.0
-        return RETURN_SPREAD_FLOOR * float(self.ctx.model.discrepancy_rel_sd)
+        return closed_loop_return_spread(self.ctx.model)
 
     def _relative_spread(self) -> float:
         """The online estimator's predictive sd of the energy per metre over its value
