@@ -77,10 +77,10 @@ def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None) -> np.ndarr
     ys = smooth_pieces(np.asarray(y_m, float), w, pieces)
     vx, vy = derivative(xs, t, pieces), derivative(ys, t, pieces)
     speed = np.hypot(vx, vy) if speed_mps is None else np.asarray(speed_mps, float)
-    return np.unwrap(_held(np.arctan2(vy, vx), speed > STILL_SPEED_MPS))
+    return np.unwrap(held_where_valid(np.arctan2(vy, vx), speed > STILL_SPEED_MPS))
 
 
-def _held(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def held_where_valid(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """``values`` where ``valid``, elsewhere the last valid one before (the first valid one
     before any; 0 when none is valid)."""
     if not valid.any():

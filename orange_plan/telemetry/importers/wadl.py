@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import RecordingError
+from orange_plan.telemetry.derive import held_where_valid
 
 GRID_S = 1.0
 """Time step of the recording grid [s]."""
@@ -134,11 +135,7 @@ def _track_yaw_rate(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Heading rate of the horizontal track, the heading held while nearly still [rad/s]."""
     dx, dy = np.gradient(x, t), np.gradient(y, t)
     heading = np.arctan2(dy, dx)
-    moving = np.hypot(dx, dy) >= STILL_MPS
-    if not moving.any():
-        return np.zeros_like(t)
-    index = np.maximum.accumulate(np.where(moving, np.arange(t.size), 0))
-    held = np.where(moving[index], heading[index], heading[np.argmax(moving)])
+    held = held_where_valid(heading, np.hypot(dx, dy) >= STILL_MPS)
     return np.gradient(np.unwrap(held), t)
 
 
