@@ -17,7 +17,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Mismatch:
-    """A time window where the baseline's residual departs from zero (SPEC §6).
+    """A time window where the baseline's residual departs from zero (docs/guide/diagnosis.md).
 
     Attributes
     ----------
@@ -150,7 +150,7 @@ CONDITIONS: dict[str, tuple[Callable, str, str]] = {
     "sensor_rate_Hz": (lambda d: d.frame["sensor_rate_Hz"].to_numpy(float), "sensor rate", "Hz"),
     "time": (lambda d: d.t_s, "time since start", "s"),
 }
-"""Operating conditions the residual is examined against (SPEC §3 columns when present)."""
+"""Operating conditions the residual is examined against (the recording's optional columns when present; docs/formats.md)."""
 
 
 def condition_values(d) -> dict[str, np.ndarray]:
