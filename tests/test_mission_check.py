@@ -487,7 +487,8 @@ def test_the_robot_turns_a_corner_at_most_at_the_arcs_speed(small, turn_deg, rad
     ``sqrt(accel_max r / tan(theta / 2))`` (one sample's acceleration of slack) where the legs
     meet: the last sample of the first leg and the first of the next."""
     from orange_plan.physics.pathcost import max_step_m
-    from orange_plan.planning.mission_check import _drive, _robot, _stages, _with_corners
+    from orange_plan.planning.mission_motion import drive
+    from orange_plan.planning.mission_stages import mission_stages, robot_limits, with_corners
 
     ctx = small["aerial"]
     theta = math.radians(turn_deg)
@@ -496,9 +497,9 @@ def test_the_robot_turns_a_corner_at_most_at_the_arcs_speed(small, turn_deg, rad
     mission = Mission((MissionWaypoint(2.0, 2.0, 10.0, speed),
                        MissionWaypoint(*corner, 10.0, speed, 0.0, radius),
                        MissionWaypoint(*after, 10.0)), returns_home=False)
-    robot = _robot(ctx)
-    stages = _with_corners(_stages(mission, robot), mission, robot)
-    samples = _drive([(None, stages)], ctx.world, robot, ctx.conditions,
+    robot = robot_limits(ctx)
+    stages = with_corners(mission_stages(mission, robot), mission, robot)
+    samples = drive([(None, stages)], ctx.world, robot, ctx.conditions,
                      max_step_m(ctx.world))
     a, dt = robot.accel_mps2, 0.1
     allowed = math.sqrt(a * radius / math.tan(theta / 2))

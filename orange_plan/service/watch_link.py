@@ -12,15 +12,11 @@ import json
 import queue
 import threading
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from orange_plan.errors import InputError
 from orange_plan.service.watch_telemetry import GCS_TYPE, INVALID_AUTOPILOT
-
-if TYPE_CHECKING:
-    from orange_plan.service.watch import Watch
 
 
 def stdin_lines(answers: queue.Queue, stream=None) -> threading.Thread:
@@ -44,10 +40,10 @@ QUEUE_MAX = 100_000
 stream); beyond it the oldest wait in the socket and, past its buffer, are lost (said)."""
 
 
-def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
+def run_watch(link, watch, *, stop_after_s: float | None = None,
               stop_when=None, poll_s: float = 0.02, drain_s: float = DRAIN_S) -> None:
     """Read the link in a thread of its own and tick the watch until ``stop_after_s`` wall
-    seconds pass or ``stop_when()`` is true.
+    seconds pass or ``stop_when()`` is true (``watch``: a ``service.watch.Watch``).
 
     The reading thread empties the socket whatever the decisions cost (a slow decision must
     not let the socket's buffer overflow and lose telemetry); the caller's thread takes the
