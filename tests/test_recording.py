@@ -290,7 +290,21 @@ def test_surface_column_maps_through_the_world(tmp_path):
     assert state.crr.tolist() == [0.1, 0.1, 0.05]
     assert state.surface_code.tolist() == [0, 0, -1]
     assert state.sensor_rate_Hz.tolist() == [3.0, 3.0, 3.0]
-    assert np.allclose(state.wind_x_mps, ctx.world.wind_xy_mps[0])
+    assert np.allclose(state.wind_x_mps, 0.0)  # no wind columns, no conditions: calm
+
+
+def test_a_recording_without_wind_columns_takes_the_conditions_wind(tmp_path):
+    """A session's measured wind (``conditions.with_wind``) reaches the samples of a
+    recording that carries no wind: the conditions are the one holder of the wind."""
+    ctx = load_context(write_scenario(tmp_path, set={"environment.wind_speed_mps": 3.0,
+                                                     "environment.wind_from_deg": 90.0}))
+    df = pd.DataFrame({"t_s": [0, 1, 2.0], "power_W": 1.0, "v_mps": 1.0})
+    measured = ctx.conditions.with_wind((1.5, -0.5))
+    state = recording_state(recording_from_frame(df), ctx.world, conditions=measured)
+    assert np.allclose(state.wind_x_mps, 1.5) and np.allclose(state.wind_y_mps, -0.5)
+    with_columns = df.assign(wind_mps=2.0, wind_from_deg=0.0)  # from the north: blows south
+    state = recording_state(recording_from_frame(with_columns), ctx.world, conditions=measured)
+    assert np.allclose(state.wind_x_mps, 0.0, atol=1e-12) and np.allclose(state.wind_y_mps, -2.0)
 
 
 # --- invariants -----------------------------------------------------------------------------------
