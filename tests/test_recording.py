@@ -365,3 +365,31 @@ def test_a_column_named_twice_is_refused():
                       columns=["t_s", "power_W", "v_mps", " power_W"])
     with pytest.raises(RecordingError, match="column 'power_W' appears twice"):
         recording_from_frame(df)
+
+
+def test_a_climb_on_the_spot_converts_to_a_recording_that_loads(tmp_path):
+    """A drone climbing at 3 m/s (its 3-D speed in ``v_mps``) while its position drifts by
+    millimetres has no heading: the derived yaw rate is held by the horizontal speed, so the
+    written recording passes its own loader's range check (|yaw rate| <= 100 rad/s)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 30.0, 0.02)
+    drift = np.cumsum(rng.normal(0.0, 1e-3, (2, t.size)), axis=1)
+    frame = pd.DataFrame({"t_s": t, "power_W": 400.0, "x_m": 2.0 + drift[0],
+                          "y_m": 1.0 + drift[1], "z_m": 3.0 * t, "v_mps": 3.0})
+    path = tmp_path / "climb.csv"
+    write_recording(recording_from_frame(frame, "climb"), path)
+    yaw = load_recording(path).frame["yaw_rate_radps"].to_numpy()
+    assert np.all(np.abs(yaw) < 1.0)
+
+
+def test_the_wadl_track_and_a_recording_share_one_yaw_rate_derivation():
+    """The WADL importer's track yaw rate is the generic derivation without smoothing: a
+    square flown at 2 m/s turns by pi/2 at each corner and holds its heading on the spot."""
+    from orange_plan.telemetry.derive import position_yaw_rate_radps
+
+    t = np.arange(0.0, 41.0)
+    x = np.interp(t, [0, 5, 15, 25, 35, 40], [0, 0, 20, 20, 0, 0])
+    y = np.interp(t, [0, 5, 15, 25, 35, 40], [0, 0, 0, 20, 20, 20])
+    yaw = position_yaw_rate_radps(x, y, t, still_mps=0.5, window=1)
+    assert np.trapezoid(yaw, t) == pytest.approx(np.pi, abs=1e-9)  # two left turns
+    assert np.all(yaw[:5] == 0.0) and np.all(yaw[36:] == 0.0)
