@@ -255,7 +255,6 @@ def test_malformed_wpl_files_get_one_line_and_exit_2(aerial, tmp_path, text, mes
 
 @pytest.mark.parametrize("text, message", [
     ("x_m,y_m\n2,2\nnan,3\n", "row 2: x_m is not a number"),
-    ("x_m,y_m,z_m\n2,2,0\n5,5,-1\n", "below home"),
     ("x_m,y_m,speed_mps\n2,2,1\n5,5,-1\n", "must be >= 0.01"),
     ("x_m,y_m\n2,2\n5000,5\n", "outside the map"),
     ("x_m,y_m\n2,2\n", "at least one waypoint"),

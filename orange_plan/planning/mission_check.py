@@ -54,11 +54,10 @@ from orange_plan.physics.pathcost import max_step_m
 from orange_plan.physics.profile import SAMPLE_DT_S
 from orange_plan.planning.mission_motion import FlatWorld, Samples, drive, energy_totals
 from orange_plan.planning.mission_stages import (
-    AT_HOME_M,
     Stage,
-    leg_speed,
     mission_stages,
     robot_limits,
+    way_home,
     with_corners,
 )
 from orange_plan.planning.reserve import reserve_from
@@ -194,18 +193,54 @@ def _context(scenario):
     return context_of(scenario)
 
 
-def _check_placement(mission: Mission, world, aerial: bool) -> None:
-    """Refuse a mission off the map, or an aerial one below the terrain."""
+def _ground_above_home(world, mission: Mission):
+    """``ground(x, y)``: the height of the world's ground above home's [m] (0 on flat
+    ground)."""
+    home = mission.waypoints[0]
+    home_z = float(world.elevation_at(home.x_m, home.y_m))
+    return lambda x, y: np.asarray(world.elevation_at(x, y), float) - home_z
+
+
+def _placed(mission: Mission, world, aerial: bool, in_map_frame: bool):
+    """The mission with every altitude above home (terrain-relative ones placed on the
+    world's ground), the ground function, and the warnings of a local frame.
+
+    In the map frame a mission off the map, or an aerial one with a waypoint below the ground
+    there, is refused; a waypoint below home is fine above the ground (a valley surveyed from
+    a ridge). In a local frame (no origin) the terrain is unknown: a waypoint below home is
+    said, not refused."""
+    if in_map_frame:
+        check_on_map(world, mission.xyz_m[:, 0], mission.xyz_m[:, 1], mission.source,
+                     "waypoint")
+    ground_m = _ground_above_home(world, mission)
+    mission = mission.above_home(ground_m)
+    if not aerial:
+        return mission, ground_m, ()
     xyz = mission.xyz_m
-    check_on_map(world, xyz[:, 0], xyz[:, 1], mission.source, "waypoint")
-    if aerial:
-        ground = world.elevation_at(xyz[:, 0], xyz[:, 1]) - world.elevation_at(xyz[0, 0],
-                                                                                xyz[0, 1])
-        low = np.flatnonzero(xyz[1:, 2] < ground[1:] - 1e-6)
-        if low.size:
-            i = int(low[0]) + 1
-            raise InputError(f"{mission.source}: waypoint {i} at {xyz[i, 2]:g} m above home is "
-                             f"below the ground there ({ground[i]:g} m above home)")
+    if not in_map_frame:
+        below = int(np.sum(xyz[1:, 2] < 0))
+        return mission, ground_m, (f"{below} waypoint(s) below home: without the map's "
+                                   "origin nothing checks them against the ground",) \
+            if below else ()
+    ground = ground_m(xyz[:, 0], xyz[:, 1])
+    low = np.flatnonzero(xyz[1:, 2] < ground[1:] - 1e-6)
+    if low.size:
+        i = int(low[0]) + 1
+        raise InputError(f"{mission.source}: waypoint {i} at {xyz[i, 2]:g} m above home is "
+                         f"below the ground there ({ground[i]:g} m above home)")
+    return mission, ground_m, ()
+
+
+def _flight(mission: Mission, ctx, in_map_frame: bool, duty: float):
+    """What checking and sampling a mission share: (mission above home, world, robot,
+    stages with corners, sub-step length [m], warnings), its size checked."""
+    robot = robot_limits(ctx)
+    world = ctx.world if in_map_frame else FlatWorld(ctx.world)
+    mission, ground_m, warnings = _placed(mission, world, robot.aerial, in_map_frame)
+    step_m = max_step_m(world)
+    stages = with_corners(mission_stages(mission, robot, ground_m), mission, robot)
+    _check_size(mission, stages, duty, step_m)
+    return mission, world, robot, stages, step_m, warnings
 
 
 def _samples_per_m(stages: list[Stage], duty: float, step_m: float) -> float:
@@ -244,7 +279,7 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
     wind : wind (x east, y north) [m/s] instead of the scenario's
     worst_wind : also sweep the wind's direction (same speed) for the costliest one
     in_map_frame : False for a mission in a local frame at its home (a map without origin):
-        flat default ground, no placement check
+        flat default ground, no placement check (a waypoint below home is warned of)
 
     Raises
     ------
@@ -253,15 +288,8 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
     """
     ctx = _context(scenario)
     conditions = ctx.conditions if wind is None else ctx.conditions.with_wind(wind)
-    robot = robot_limits(ctx)
-    if in_map_frame:
-        _check_placement(mission, ctx.world, robot.aerial)
-        world = ctx.world
-    else:
-        world = FlatWorld(ctx.world)
-    step_m = max_step_m(world)
-    stages = with_corners(mission_stages(mission, robot), mission, robot)
-    _check_size(mission, stages, conditions.duty_cycle, step_m)
+    mission, world, robot, stages, step_m, warnings = _flight(
+        mission, ctx, in_map_frame, conditions.duty_cycle)
     n = len(stages)
     samples = drive([(None, stages)], world, robot, conditions, step_m)
     energy, grad, duration = energy_totals(ctx.model, samples, n)
@@ -279,7 +307,7 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
         float(duration.sum()), float(avail), total_reserve, verdict, failing,
         _point_of_no_return(legs, start_margin), conditions.wind_xy_mps, worst,
         rule.describe(), start_margin,
-        _leaving_free_space(stages, ctx.world) if in_map_frame else ())
+        warnings + (_leaving_free_space(stages, ctx.world) if in_map_frame else ()))
 
 
 MAX_WARNED_LEGS = 5
@@ -310,37 +338,21 @@ def mission_samples(mission: Mission, scenario, *, in_map_frame: bool = True):
     ``energy_J`` under that model (a cross-validation refits the model per fold).
     """
     ctx = _context(scenario)
-    robot = robot_limits(ctx)
-    world = ctx.world if in_map_frame else FlatWorld(ctx.world)
-    step_m = max_step_m(world)
-    stages = with_corners(mission_stages(mission, robot), mission, robot)
-    _check_size(mission, stages, ctx.conditions.duty_cycle, step_m)
+    _, world, robot, stages, step_m, _ = _flight(mission, ctx, in_map_frame,
+                                                 ctx.conditions.duty_cycle)
     samples = drive([(None, stages)], world, robot, ctx.conditions, step_m)
     return samples.state, samples.weight_s
 
 
 def _ways_home(stages, mission, world, robot, conditions, step_m, model):
-    """Energy [J] and gradient of the way home from each stage's end: a straight leg home
-    at that altitude (at the speed leaving the last waypoint, the mission's own return, or
-    cruise), then the landing; 0 once home and landed, or at the
-    end of a mission that ends away from home."""
+    """Energy [J] and gradient of the way home from each stage's end (``way_home``: at the
+    speed leaving the last waypoint, the mission's own return, or cruise); 0 once home and
+    landed, or at the end of a mission that ends away from home."""
     home = (mission.waypoints[0].x_m, mission.waypoints[0].y_m)
     return_speed = mission.waypoints[-1].speed_mps  # the mission's own return (None: cruise)
     groups = []
-    for k, st in enumerate(stages):
-        if k == len(stages) - 1:
-            continue  # the end of the mission: nothing left to fly
-        here = st.end
-        way = []
-        if math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
-            end = (*home, here[2])
-            way.append(Stage("return", st.to_wp, 0, here, end,
-                              leg_speed(robot, return_speed, here, end)))
-            here = end
-        if robot.aerial and here[2] > 0:
-            end = (here[0], here[1], 0.0)
-            way.append(Stage("landing", 0, 0, here, end,
-                              leg_speed(robot, robot.landing_mps, here, end)))
+    for k, st in enumerate(stages[:-1]):  # from the end of the mission nothing is left to fly
+        way = way_home(st.end, home, st.to_wp, return_speed, robot)
         if way:
             groups.append((k, way))
     energy, grad = np.zeros(len(stages)), np.zeros((len(stages), len(model.theta)))

@@ -110,8 +110,12 @@ def leg_speed(robot: RobotLimits, wanted, start, end) -> float:
     return speed
 
 
-def mission_stages(mission: Mission, robot: RobotLimits) -> list[Stage]:
-    """The flight as stages, corners not yet set (step 1 of this module's docstring)."""
+def mission_stages(mission: Mission, robot: RobotLimits, ground_m=None) -> list[Stage]:
+    """The flight as stages, corners not yet set (step 1 of this module's docstring).
+
+    ``mission``'s altitudes are above home (``Mission.above_home``); ``ground_m(x, y)``: the
+    ground's height above home [m] where a mission that does not come home lands (None: at
+    home's height)."""
     wps = mission.waypoints
     z = [w.z_m if robot.aerial else 0.0 for w in wps]
     home = (wps[0].x_m, wps[0].y_m)
@@ -138,19 +142,44 @@ def mission_stages(mission: Mission, robot: RobotLimits) -> list[Stage]:
         waiting_s = 0.0
         here = end
     last = len(wps) - 1
-    if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
-        end = (*home, here[2])
-        stages.append(Stage("return", last, 0, here, end,
-                             leg_speed(robot, wps[last].speed_mps, here, end)))
-        here = end
-    if robot.aerial and here[2] > 0:
-        end = (here[0], here[1], 0.0)
-        stages.append(Stage("landing", stages[-1].to_wp if stages else 0,
-                             stages[-1].to_wp if stages else 0, here, end,
-                             leg_speed(robot, robot.landing_mps, here, end)))
+    if mission.returns_home:
+        stages += way_home(here, home, last, wps[last].speed_mps, robot)
+    elif robot.aerial:
+        ground = 0.0 if ground_m is None else float(ground_m(here[0], here[1]))
+        stages += _landing(here, ground, stages[-1].to_wp if stages else 0, robot)
     if not stages:
         raise InputError(f"{mission.source}: every waypoint is home: nothing to fly")
     return stages
+
+
+def way_home(here: tuple, home: tuple, at_wp: int, speed_mps, robot: RobotLimits
+             ) -> list[Stage]:
+    """The way home from ``here`` (x, y, z above home) [m], leaving waypoint ``at_wp``: a
+    vertical climb to home's height when below it (no way home passes under its own take-off
+    point), a straight leg home at that height at ``speed_mps`` (None: cruise), then the
+    landing at home. Empty at home on the ground."""
+    way = []
+    if robot.aerial and here[2] < 0:
+        up = (here[0], here[1], 0.0)
+        way.append(Stage("return", at_wp, at_wp, here, up, leg_speed(robot, None, here, up)))
+        here = up
+    if math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
+        end = (*home, here[2])
+        way.append(Stage("return", at_wp, 0, here, end, leg_speed(robot, speed_mps, here, end)))
+        here = end
+    if robot.aerial:
+        way += _landing(here, 0.0, way[-1].to_wp if way else at_wp, robot)
+    return way
+
+
+def _landing(here: tuple, ground: float, at_wp: int, robot: RobotLimits) -> list[Stage]:
+    """The vertical descent from ``here`` to the ground's height ``ground`` [m] (none when
+    at or below it)."""
+    if here[2] <= ground:
+        return []
+    end = (here[0], here[1], ground)
+    return [Stage("landing", at_wp, at_wp, here, end,
+                  leg_speed(robot, robot.landing_mps, here, end))]
 
 
 def with_corners(stages: list[Stage], mission: Mission, robot: RobotLimits) -> list[Stage]:
