@@ -1,4 +1,4 @@
-"""SPEC §7 path energy: ramps over a DEM, surfaces crossed, turning at interior vertices."""
+"""Path energy (docs/guide/range.md, Eq. 7): ramps over a DEM, surfaces crossed, turning at interior vertices."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The plan figure (issue #8 item 4): PNG written atomically, map drawing reusable and fast."""
+"""The plan figure: PNG written atomically, map drawing reusable and fast."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Recordings (SPEC §3): reading, every validation rule, derived channels, motion state."""
+"""Recordings (docs/formats.md, docs/guide/recordings.md): reading, every validation rule, derived channels, motion state."""
 
 from __future__ import annotations
 

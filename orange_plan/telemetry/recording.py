@@ -494,7 +494,7 @@ def _check_ranges(cols: Columns, source: str, names=tuple(PHYSICAL_RANGES),
         raise RecordingError(
             f"{source}: column '{col}'{derived} = {v[i]:.6g} at row {row} (CSV line {row + 2}) "
             f"is outside its physical range [{low:.6g}, {high:.6g}] {unit}"
-            f"{hint}; fix or remove the value (README: recordings)"
+            f"{hint}; fix or remove the value (docs/guide/recordings.md)"
         )
 
 
