@@ -127,3 +127,18 @@ def test_a_terrain_relative_mission_follows_the_ground():
     placed = mission.above_home(lambda x, y: -x)
     assert [w.z_m for w in placed.waypoints] == [0.0, -5.0, 5.0]
     assert not any(w.above_terrain for w in placed.waypoints)
+
+
+def test_a_leg_through_a_ridge_between_two_waypoints_is_warned_about(tmp_path):
+    """Both ends of the leg are above the ground; the hill between them is not under it: the
+    check says which legs cut through the terrain (the waypoints alone cannot tell)."""
+    scenario = make_aerial(with_origin(write_world(tmp_path, width_m=60.0, height_m=20.0,
+                                                   hill=(30.0, 10.0, 30.0, 4.0),
+                                                   rated_energy_Wh=2.0)))
+    ctx = load_context(scenario)
+    over = Mission((MissionWaypoint(2, 10), MissionWaypoint(55, 10, 40.0)), 40.0, True)
+    through = Mission((MissionWaypoint(2, 10), MissionWaypoint(55, 10, 10.0)), 10.0, True)
+    assert not check_mission(over, ctx).warnings
+    warned = check_mission(through, ctx).warnings
+    assert len(warned) == 1 and "2 leg(s) pass below the map's ground" in warned[0]
+    assert "leg 0 -> 1" in warned[0] and "return 1 -> 0" in warned[0]

@@ -233,14 +233,15 @@ def _placed(mission: Mission, world, aerial: bool, in_map_frame: bool):
 
 def _flight(mission: Mission, ctx, in_map_frame: bool, duty: float):
     """What checking and sampling a mission share: (mission above home, world, robot,
-    stages with corners, sub-step length [m], warnings), its size checked."""
+    stages with corners, sub-step length [m], the ground's height above home ``ground(x,
+    y)`` [m], warnings), its size checked."""
     robot = robot_limits(ctx)
     world = ctx.world if in_map_frame else FlatWorld(ctx.world)
     mission, ground_m, warnings = _placed(mission, world, robot.aerial, in_map_frame)
     step_m = max_step_m(world)
     stages = with_corners(mission_stages(mission, robot, ground_m), mission, robot)
     _check_size(mission, stages, duty, step_m)
-    return mission, world, robot, stages, step_m, warnings
+    return mission, world, robot, stages, step_m, ground_m, warnings
 
 
 def _samples_per_m(stages: list[Stage], duty: float, step_m: float) -> float:
@@ -288,8 +289,10 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
     """
     ctx = _context(scenario)
     conditions = ctx.conditions if wind is None else ctx.conditions.with_wind(wind)
-    mission, world, robot, stages, step_m, warnings = _flight(
+    mission, world, robot, stages, step_m, ground_m, warnings = _flight(
         mission, ctx, in_map_frame, conditions.duty_cycle)
+    if in_map_frame and robot.aerial:
+        warnings += _passing_under_ground(stages, ground_m, step_m)
     n = len(stages)
     samples = drive([(None, stages)], world, robot, conditions, step_m)
     energy, grad, duration = energy_totals(ctx.model, samples, n)
@@ -311,7 +314,19 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
 
 
 MAX_WARNED_LEGS = 5
-"""Legs named one by one in the warning about free space (the rest are counted)."""
+"""Legs named one by one in a warning about legs (the rest are counted)."""
+UNDER_GROUND_M = 1e-3
+"""A leg this far below the ground's surface somewhere between its ends passes through it
+[m] (round-off of the raster's interpolation is not)."""
+
+
+def _legs_named(bad: list[Stage], what: str) -> tuple[str, ...]:
+    """One warning naming the legs ``bad`` (at most ``MAX_WARNED_LEGS``), or none."""
+    if not bad:
+        return ()
+    named = ", ".join(f"{st.kind} {st.from_wp} -> {st.to_wp}" for st in bad[:MAX_WARNED_LEGS])
+    more = f" and {len(bad) - MAX_WARNED_LEGS} more" if len(bad) > MAX_WARNED_LEGS else ""
+    return (f"{len(bad)} leg(s) {what}: {named}{more}",)
 
 
 def _leaving_free_space(stages: list[Stage], world) -> tuple[str, ...]:
@@ -320,13 +335,28 @@ def _leaving_free_space(stages: list[Stage], world) -> tuple[str, ...]:
     if not flat:
         return ()
     free = world.segments_free([st.start[:2] for st in flat], [st.end[:2] for st in flat])
-    bad = [st for st, ok in zip(flat, free) if not ok]
-    if not bad:
+    return _legs_named([st for st, ok in zip(flat, free) if not ok],
+                       "leave the map's free space (an obstacle, a no-go zone or the boundary, "
+                       "within the robot's keep-away)")
+
+
+def _passing_under_ground(stages: list[Stage], ground_m, step_m: float) -> tuple[str, ...]:
+    """One warning naming the legs whose straight line dips below the map's ground between
+    its ends (a ridge between two waypoints above the ground), looked at every ``step_m``
+    [m] (at most the mission's own samples, which ``_check_size`` bounds)."""
+    flat = [st for st in stages if not st.vertical]
+    if not flat:
         return ()
-    named = ", ".join(f"{st.kind} {st.from_wp} -> {st.to_wp}" for st in bad[:MAX_WARNED_LEGS])
-    more = f" and {len(bad) - MAX_WARNED_LEGS} more" if len(bad) > MAX_WARNED_LEGS else ""
-    return (f"{len(bad)} leg(s) leave the map's free space (an obstacle, a no-go zone or the "
-            f"boundary, within the robot's keep-away): {named}{more}",)
+    counts = np.array([math.ceil(st.horiz_m / step_m) + 1 for st in flat])
+    leg = np.repeat(np.arange(len(flat)), counts)
+    frac = np.concatenate([np.linspace(0.0, 1.0, c) for c in counts])
+    start = np.array([st.start for st in flat], float)
+    delta = np.array([st.end for st in flat], float) - start
+    p = start[leg] + frac[:, None] * delta[leg]
+    under = p[:, 2] < ground_m(p[:, 0], p[:, 1]) - UNDER_GROUND_M
+    return _legs_named([flat[i] for i in np.unique(leg[under])],
+                       "pass below the map's ground between their waypoints (the energy is "
+                       "that of the straight leg)")
 
 
 def mission_samples(mission: Mission, scenario, *, in_map_frame: bool = True):
@@ -338,8 +368,8 @@ def mission_samples(mission: Mission, scenario, *, in_map_frame: bool = True):
     ``energy_J`` under that model (a cross-validation refits the model per fold).
     """
     ctx = _context(scenario)
-    _, world, robot, stages, step_m, _ = _flight(mission, ctx, in_map_frame,
-                                                 ctx.conditions.duty_cycle)
+    _, world, robot, stages, step_m, _, _ = _flight(mission, ctx, in_map_frame,
+                                                    ctx.conditions.duty_cycle)
     samples = drive([(None, stages)], world, robot, ctx.conditions, step_m)
     return samples.state, samples.weight_s
 
