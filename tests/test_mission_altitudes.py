@@ -7,9 +7,12 @@ refused."""
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 from conftest import run_cli
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from planning_worlds import write_world
 from test_export import MUNICH, with_origin
 from test_mission_check import latlon, make_aerial, qgc_file, qgc_item
@@ -142,3 +145,26 @@ def test_a_leg_through_a_ridge_between_two_waypoints_is_warned_about(tmp_path):
     warned = check_mission(through, ctx).warnings
     assert len(warned) == 1 and "2 leg(s) pass below the map's ground" in warned[0]
     assert "leg 0 -> 1" in warned[0] and "return 1 -> 0" in warned[0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.floats(-500.0, 500.0), y=st.floats(-500.0, 500.0), z=st.floats(-300.0, 300.0),
+       aerial=st.booleans())
+def test_the_way_home_is_continuous_ends_home_and_never_sinks(x, y, z, aerial):
+    """From anywhere, the way home is a chain of stages from there to home on the ground (an
+    aerial robot's) that never goes lower than where it started or home's height, whichever
+    is lower, and climbs only on the spot."""
+    from orange_plan.planning.mission_stages import RobotLimits, way_home
+
+    robot = RobotLimits(aerial, 3.0, 2.5, 1.5, 5.0, 2.0, 1.0)
+    here = (x, y, z if aerial else 0.0)
+    way = way_home(here, (0.0, 0.0), 3, None, robot)
+    at = here
+    for stage in way:
+        assert stage.start == at
+        assert min(stage.start[2], stage.end[2]) >= min(here[2], 0.0) - 1e-9
+        if stage.end[2] > stage.start[2]:
+            assert stage.vertical
+        at = stage.end
+    assert math.hypot(at[0], at[1]) <= 1e-3  # AT_HOME_M
+    assert at[2] == pytest.approx(0.0, abs=1e-9)
