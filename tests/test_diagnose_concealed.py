@@ -7,10 +7,11 @@ Why it is stated this way: the truth is known only because the recording was gen
 the check is against the generator's own parameters (an independent reference: the generator
 adds hvac and the battery losses by its own formulas, the rest through the simulator), and a
 named term must be one that was concealed. Seeds 0 here; ``orange-plan bench diagnose`` runs
-seeds the tests never saw (101-103) and reports the totals in the README.
+seeds the tests never saw (101-103) and reports the totals (docs/benchmarks/diagnose.md).
 
 Cases the diagnosis does not yet get right are marked ``xfail(strict=True)`` with the reason
-measured: if one starts passing, the mark must go (README "Diagnosis: measured").
+measured: if one starts passing, the mark must go (docs/benchmarks/diagnose.md, "What is
+missed, and why").
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ Z_MAX = 3.0
 """A recovered parameter is within its uncertainty when |fitted - true| <= 3 sd."""
 
 NOT_YET: dict[str, str] = {
-    # name -> the measured reason, at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
+    # name -> the measured reason, at seed 0 (30 min, 10 Hz): see docs/benchmarks/diagnose.md
     "drift": "a 4.2 W drift at t = 3.7 under the residual's autoregressive long-run variance "
              "(4.5 under batch means); told the drift, the oracle gives "
              "the same 3.7: the recording does not carry it at MIN_T = 4",
