@@ -21,8 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.identify.diagnose import (
-    MIN_EFFECT_SHARE,
-    MIN_T,
+    DEFAULT_SETTINGS,
     candidates,
     detection_limit_W,
     diagnose,
@@ -30,6 +29,9 @@ from orange_plan.identify.diagnose import (
     judge,
 )
 from orange_plan.sim.concealed import concealed_case
+
+MIN_T = DEFAULT_SETTINGS.min_t
+MIN_EFFECT_SHARE = DEFAULT_SETTINGS.min_effect_share
 
 LINEAR = ("battery_temperature", "turning", "inertia")
 """Candidates of one coefficient whose column does not depend on the residual (a payload's
