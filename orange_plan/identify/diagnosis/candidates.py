@@ -162,7 +162,7 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
 
 
 def candidates() -> list[Candidate]:
-    """Every candidate diagnosis tries (module docstring)."""
+    """Every candidate diagnosis tries (the method: ``identify.diagnosis``)."""
     special = {"surface_rolling": _surface_effect, "drift": _drift_effect}
     out = [Candidate(t, _applies_term(t, _NEEDS.get(t)), special.get(t) or _term_effect(t),
                      _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]

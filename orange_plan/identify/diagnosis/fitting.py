@@ -111,8 +111,9 @@ class Fit:
 
 
 def fit_design(d: Design, chosen: list[Candidate]) -> Fit:
-    """Fit the baseline columns plus the chosen candidates' effects (module docstring); with
-    ``regen`` among them, inside the model (``_fit_with_regen``)."""
+    """Fit the baseline columns plus the chosen candidates' effects (the method:
+    ``identify.diagnosis``); with ``regen`` among them, inside the model
+    (``_fit_with_regen``)."""
     if any(c.id == "regen" for c in chosen):
         return _fit_with_regen(d, chosen)
     return _linear_fit(d, chosen)

@@ -123,7 +123,7 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
              pool: list[Candidate] | None = None,
              settings: DiagnosisSettings = DEFAULT_SETTINGS) -> Diagnosis:
     """Locate the mismatch between a recording and the scenario's model, name the missing
-    physics, fit it, and report the fit before and after (module docstring).
+    physics, fit it, and report the fit before and after (the method: ``identify.diagnosis``).
 
     Parameters
     ----------

@@ -84,7 +84,7 @@ class Selection:
 
 def select(d: Design, pool: list[Candidate]) -> Selection:
     """Forward selection, by pairs when no single candidate passes, with a backward pass
-    (module docstring)."""
+    (the method: ``identify.diagnosis``)."""
     chosen: list[Candidate] = []
     fits = [fit_design(d, [])]
     trials: list[Trial] = []
