@@ -121,9 +121,9 @@ def test_the_winds_limit_by_hand():
     from types import SimpleNamespace
 
     wind = _candidate("wind")
-    d = SimpleNamespace(mean_power_W=10.0)
+    d = SimpleNamespace(mean_power_W=10.0, settings=DEFAULT_SETTINGS)
     current = SimpleNamespace(rmse_W=2.0)
     assert detection_limit_W(d, wind, None, current, 100.0) == pytest.approx(0.7690415, rel=1e-6)
     # a large share floor wins
-    assert detection_limit_W(SimpleNamespace(mean_power_W=1e3), wind, None, current,
-                             100.0) == pytest.approx(10.0)
+    big = SimpleNamespace(mean_power_W=1e3, settings=DEFAULT_SETTINGS)
+    assert detection_limit_W(big, wind, None, current, 100.0) == pytest.approx(10.0)
