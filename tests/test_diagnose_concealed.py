@@ -19,8 +19,16 @@ from __future__ import annotations
 import pytest
 
 from orange_plan.bench.diagnose import concealed_id, oracle, with_stated_limits
-from orange_plan.identify.diagnose import AS_GOOD_HELD_OUT, MASK_EACH_OTHER, MIN_T, diagnose
+from orange_plan.identify.diagnose import (
+    AS_GOOD_HELD_OUT,
+    DEFAULT_SETTINGS,
+    MASK_EACH_OTHER,
+    diagnose,
+)
 from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
+
+MIN_T = DEFAULT_SETTINGS.min_t
+MIN_GAIN = DEFAULT_SETTINGS.min_gain
 
 SEED = 0
 Z_MAX = 3.0
@@ -137,7 +145,7 @@ def test_a_term_the_recording_cannot_tell_apart_is_offered_as_an_alternative():
     as the payload does (within MIN_GAIN). Diagnosis names one of them; the other must be
     offered as an alternative, with the held-out RMSEs it was measured at, and the evidence
     must say the recording cannot tell them apart."""
-    from orange_plan.identify.diagnose import MIN_GAIN, candidates, fit_design
+    from orange_plan.identify.diagnose import candidates, fit_design
 
     case = concealed_case(["wind", "payload"], 6)
     result = diagnose(case.recording, case.ctx)

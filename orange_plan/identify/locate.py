@@ -1,10 +1,10 @@
 """Locating where a recording and a model disagree: in time, in operating conditions, in space.
 
-``identify.diagnose`` hands in its design (the recording against the refitted baseline) and
+``identify.diagnosis`` hands in its design (the recording against the refitted baseline) and
 the baseline's residual (recorded minus predicted battery power); this module says where the
 residual departs from zero, in words a person can check against the recording. ``d`` in the
-functions below is that design (``identify.diagnose.Design``: samples, state, time, frame,
-world, recorded power); it is not imported here, which would import diagnosis back.
+functions below is that design (``identify.diagnosis.design.Design``: samples, state, time,
+frame, world, recorded power); it is not imported here, which would import diagnosis back.
 """
 
 from __future__ import annotations
