@@ -108,7 +108,7 @@ LUMPED: dict[str, Lumped] = {
     "drift_W": Lumped(None, _constant(0.0)),
     # the heater request is a demand: no a priori share (0: no prior, calibrate it)
     "heater_fraction": Lumped(None, _constant(0.0)),
-    # found by diagnosis (identify/diagnose.py); no a priori value (0: no prior)
+    # found by diagnosis (identify/diagnosis/); no a priori value (0: no prior)
     "hvac_heat_W_per_K": Lumped(None, _constant(0.0)),
     "hvac_cool_W_per_K": Lumped(None, _constant(0.0)),
     "battery_loss_per_W": Lumped(None, _constant(0.0)),

@@ -15,7 +15,7 @@ MAX_POINTS = 4000
 
 
 def plot_diagnosis(result, path: str | Path, title: str = "") -> Path:
-    """Write the diagnosis PNG (atomically) for an ``identify.diagnose.Diagnosis``."""
+    """Write the diagnosis PNG (atomically) for an ``identify.diagnosis.Diagnosis``."""
     return save_figure(diagnosis_figure(result, title), path)
 
 
