@@ -215,8 +215,10 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     # the a-priori discrepancy (``RETURN_SPREAD_FLOOR``), not all of it; scored with all of
     # it, sweeps whose returns are short look better than they fly
     flown = replace(ctx, model=ctx.model.with_discrepancy(closed_loop_return_spread(ctx.model)))
+    # scored over the budgets a run flies on: its energy differs from the model's by the
+    # a-priori run-to-run discrepancy (the floor above only sizes the return's reserve)
     sweep = best_sweep(flown, reach, home, setup.grid, detours, baseline_xy, e_left, time_left,
-                       longest, lanes=lanes)
+                       longest, lanes=lanes, run_sd=ctx.model.discrepancy_rel_sd)
     if sweep is None:
         return None
     # the guaranteed prefix is sought from its turn points on the scenario's model; the
