@@ -9,7 +9,7 @@ Three methods, side by side on the same scenarios and the same truths:
 (c) ``physics``: the tour planner with the energy model: ``planner(ctx, cost="physics")``.
 
 Each plan is flown by the simulator (``sim.simulator.simulate``, what ``orange-plan simulate``
-runs; plans go through their SPEC §4 GeoJSON and ``load_route``) under ``seeds`` truths drawn
+runs; plans go through their plan GeoJSON (docs/formats.md) and ``load_route``) under ``seeds`` truths drawn
 within the model's calibration uncertainty (``sim.perturb.calibration_truths``); the same
 truths and seeds for the three methods. Per flight:
 
@@ -18,7 +18,7 @@ truths and seeds for the three methods. Per flight:
 * stranded: the battery's usable energy ran out before the route ended, or the route did not
   end at home;
 * energy left at home: the truth's usable energy minus the energy drawn (negative: stranded);
-* coverage / bound: coverage over the physical bound of SPEC §4 with nothing kept back
+* coverage / bound: coverage over the physical bound of the plan summary (docs/json.md) with nothing kept back
   (``coverage_bound_m2``: the same for the three methods; the planner's own summary bound,
   which keeps its reserve back, is in ``--json`` as ``planner_bound_m2``).
 
@@ -266,7 +266,7 @@ def scenario_specs(names: Sequence[str], folder: Path, family_size: int = 4,
 def coverage_bound_m2(ctx) -> float:
     """Physical coverage bound of a scenario, the same for every method [m^2].
 
-    ``min(free area, 2 r L + pi r^2)`` (SPEC §4) with ``L`` the farthest the robot can drive:
+    ``min(free area, 2 r L + pi r^2)`` (docs/json.md) with ``L`` the farthest the robot can drive:
     all the usable energy over the least energy per metre anywhere on the map
     (``planning.tour.min_energy_per_m``), and with a time limit at most
     ``v_max D time_limit_s``. Nothing is kept back: the planner's own summary bound
@@ -301,7 +301,7 @@ def flight_of(ctx, sim, seed: int, bound_m2: float, turned_home_s=None) -> Fligh
 
 
 def _route_via_geojson(plan, folder: Path, name: str):
-    """The plan as ``orange-plan simulate`` reads it: its SPEC §4 file through ``load_route``."""
+    """The plan as ``orange-plan simulate`` reads it: its plan file (docs/formats.md) through ``load_route``."""
     from orange_plan.sim.route import load_route
 
     path = folder / f"{name}.geojson"
