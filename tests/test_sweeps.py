@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import shapely
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from planning_worlds import draw_world_spec, write_world
 
@@ -232,10 +232,20 @@ def _assert_home_to_home(swept, ctx):
     return route
 
 
+# A tiny budget where a sweep chosen at the budget alone (2 cells at 110 deg) sensed 13 %
+# less than the lawnmower on another roadmap's ways home: its turn fell just before a lane
+# end. Chosen over the budget spread, the plan keeps a sweep as good at every budget.
+TINY_BUDGET = {"width_m": 36.0, "height_m": 18.0, "obstacles": [(12.0, 14.0, 18.0, 18.0)],
+               "hill": None, "ramp": 0.0,
+               "surfaces": [(24.0, 0.0, 32.0, 18.0, 0.14279846575665095)],
+               "reserve": {"confidence": 0.95}, "rated_energy_Wh": 0.3}
+
+
 @pytest.mark.timeout(280)
-@settings(max_examples=6, deadline=None, derandomize=True, database=None,
+@settings(max_examples=6, deadline=None, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(spec=worlds())
+@example(spec=TINY_BUDGET)
 def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_factory, spec):
     """By construction: on the planner's own roadmap and rule, the sweep it keeps is expected
     to sense at least what the lawnmower route does. Independently: one fresh roadmap's ways
