@@ -198,6 +198,15 @@ class RouteNeeds:
         """Area sensed before the closed-loop rule turns home with ``e_left_J`` [m^2]."""
         return _sensed_m2(grid, cut_path(self.full_xy_m, self.closed_turn_m(e_left_J)), r)
 
+    def closed_m2_over(self, grid, budgets_J, r: float) -> tuple[float, ...]:
+        """``closed_m2_at`` for each budget, the area counted once per distinct turn point
+        (a time limit or a route sensed whole turns them all at one point) [m^2]."""
+        area: dict[float, float] = {}
+        for s in (self.closed_turn_m(b) for b in budgets_J):
+            if s not in area:
+                area[s] = _sensed_m2(grid, cut_path(self.full_xy_m, s), r)
+        return tuple(area[self.closed_turn_m(b)] for b in budgets_J)
+
     def score(self, grid, e_left_J: float, r: float) -> RouteScore:
         """Both turn points and the area sensed up to each with ``e_left_J`` to spend."""
         k_closed = _last_ok(~((self.closed_J > e_left_J) | self.late))
@@ -370,7 +379,7 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
     def scored(xy, angle_deg, order, *cell) -> Sweep:
         needs = route_needs(ctx, cost, home, xy, time_left_s, step, max_length_m,
                             reach.reserve)
-        spread = tuple(needs.closed_m2_at(grid, b, r) for b in budgets)
+        spread = needs.closed_m2_over(grid, budgets, r)
         return Sweep(xy, angle_deg, order, needs.score(grid, e_left_J, r), tried, *cell,
                      spread_m2=spread)
 
