@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import shapely
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from planning_worlds import draw_world_spec, write_world
 
@@ -169,6 +169,37 @@ def test_energy_rule_never_fires_on_a_route_that_fits():
     assert not d.fired
 
 
+def _candidate(spread, nominal):
+    return SimpleNamespace(spread_m2=tuple(spread), score=SimpleNamespace(closed_m2=nominal))
+
+
+def test_a_sweep_replaces_the_lawnmower_only_if_it_senses_as_much_at_every_budget():
+    """A sweep that senses more at the budget itself but less than the lawnmower when the
+    run turns out dearer is not kept; one at least as good everywhere is, and among those
+    the largest mean over the spread wins."""
+    from orange_plan.planning.sweeps import choose_sweep
+
+    def rank(score):
+        return (score.closed_m2,)
+
+    base = _candidate([100, 200, 300], 200)
+    greedy = _candidate([80, 260, 400], 260)  # more at the budget, less on a dear run
+    assert choose_sweep([greedy, base], base, rank) is base
+    steady = _candidate([100, 210, 320], 210)
+    bold = _candidate([101, 200, 330], 200)
+    assert choose_sweep([greedy, steady, bold, base], base, rank) is bold
+    assert choose_sweep([greedy, steady], None, rank) is greedy  # no lawnmower: the mean
+
+
+def test_budget_factors_span_dearer_and_cheaper_runs():
+    from orange_plan.planning.sweeps import budget_factors
+
+    assert np.allclose(budget_factors(0.0), [1.0])
+    f = budget_factors(0.25)
+    assert f.min() < 0.8 < 1.25 < f.max() and np.any(np.isclose(f, 1.0))
+    assert np.all(budget_factors(5.0) <= 2.0)  # a run never counted below half the model
+
+
 def test_route_after_is_the_rest_of_the_route():
     route = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
     rest = route_after(route, 4.0)
@@ -201,10 +232,20 @@ def _assert_home_to_home(swept, ctx):
     return route
 
 
+# A tiny budget where a sweep chosen at the budget alone (2 cells at 110 deg) sensed 13 %
+# less than the lawnmower on another roadmap's ways home: its turn fell just before a lane
+# end. Chosen over the budget spread, the plan keeps a sweep as good at every budget.
+TINY_BUDGET = {"width_m": 36.0, "height_m": 18.0, "obstacles": [(12.0, 14.0, 18.0, 18.0)],
+               "hill": None, "ramp": 0.0,
+               "surfaces": [(24.0, 0.0, 32.0, 18.0, 0.14279846575665095)],
+               "reserve": {"confidence": 0.95}, "rated_energy_Wh": 0.3}
+
+
 @pytest.mark.timeout(280)
-@settings(max_examples=6, deadline=None, derandomize=True, database=None,
+@settings(max_examples=6, deadline=None, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(spec=worlds())
+@example(spec=TINY_BUDGET)
 def test_the_plan_senses_at_least_the_lawnmower_under_the_same_rule(tmp_path_factory, spec):
     """By construction: on the planner's own roadmap and rule, the sweep it keeps is expected
     to sense at least what the lawnmower route does. Independently: one fresh roadmap's ways
@@ -258,7 +299,7 @@ def _every_sweep_joined(ctx, setup, home, detours, lanes, e_left, limit, max_m):
     from orange_plan.planning.lawnmower import join_pieces
     from orange_plan.planning.sweeps import cell_candidates
 
-    reach, home_xy = setup.reach, np.asarray(setup.reach.home_xy_m, float)
+    home_xy = np.asarray(setup.reach.home_xy_m, float)
     pieces = []
     for angle in sorted({float(a) % 180.0 for a in DEFAULT_ANGLES_DEG}):
         at = lanes(angle)
@@ -274,9 +315,21 @@ def _every_sweep_joined(ctx, setup, home, detours, lanes, e_left, limit, max_m):
             xy = join_pieces(home_xy, p, detours)[0]
         except PlanningError:
             continue
-        scores.append(score_route(ctx, reach.fast, home, setup.grid, xy, e_left, limit,
-                                  score_step_m(ctx), max_m, reach.reserve).closed_m2)
+        scores.append(_spread(ctx, setup, home, xy, e_left, limit, max_m))
     return scores
+
+
+def _spread(ctx, setup, home, xy, e_left, limit, max_m, run_sd=None) -> np.ndarray:
+    """Area a route senses before the closed-loop turn at each budget of the spread
+    (``budget_factors`` of the a-priori discrepancy), recomputed with ``route_needs``."""
+    from orange_plan.planning.sweeps import budget_factors, route_needs
+
+    reach, r = setup.reach, ctx.scenario.mission.sensor_radius_m
+    run_sd = ctx.model.discrepancy_rel_sd if run_sd is None else run_sd
+    needs = route_needs(ctx, reach.fast, home, xy, limit, score_step_m(ctx), max_m,
+                        reach.reserve)
+    return np.array([needs.closed_m2_at(setup.grid, e_left * f, r)
+                     for f in budget_factors(run_sd)])
 
 
 @pytest.mark.timeout(600)
@@ -319,8 +372,13 @@ def test_the_plan_senses_at_least_every_sweep_whole_map_or_cell_by_cell(
     if not true_map.keep_out.is_empty:
         assert (shapely.distance(true_map.keep_out, lines) >= radius - 1e-6).all()
 
-    planned = swept.summary["closed_loop_coverage_m2"]
     # each candidate scored under the rule the planner chose by (the closed loop's reserve)
-    scores = _every_sweep_joined(_closed_loop(ctx), setup, home, detours, lanes, left, limit,
-                                 max_m)
-    assert scores and planned >= max(scores) - 1e-6
+    # over the budgets a run flies on (the a-priori run-to-run discrepancy)
+    flown, run_sd = _closed_loop(ctx), ctx.model.discrepancy_rel_sd
+    scores = _every_sweep_joined(flown, setup, home, detours, lanes, left, limit, max_m)
+    lawn = plan_lawnmower(ctx, reach, lanes=lanes).xy_m
+    base = _spread(flown, setup, home, lawn, left, limit, max_m, run_sd)
+    planned = np.array([m2 for _, m2 in swept.summary["closed_loop_spread_m2"]])
+    assert np.all(planned >= base - 1e-6), (planned, base)
+    as_good = [sc for sc in scores if np.all(sc >= base - 1e-6)]
+    assert not as_good or planned.mean() >= max(sc.mean() for sc in as_good) - 1e-6

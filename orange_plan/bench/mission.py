@@ -210,10 +210,9 @@ def study_scenario(folder: Path, spec: MissionSpec) -> Path:
 
 def map_kit(spec: MissionSpec) -> _MapKit:
     """Context, first tour, lawnmower and return paths of the spec's map (memoised)."""
-    from orange_plan.bench.plan import driven_home
+    from orange_plan.bench.plan import driven_home, lawnmower_reach
     from orange_plan.context import load_context
     from orange_plan.planning.lawnmower import plan_lawnmower
-    from orange_plan.planning.reach import prepare_reach
     from orange_plan.planning.tour import plan_tour
 
     def make() -> _MapKit:
@@ -223,7 +222,7 @@ def map_kit(spec: MissionSpec) -> _MapKit:
                                     bitstar_legs=0), None
         except OrangeError as exc:
             plan, error = None, f"{type(exc).__name__}: {exc}"
-        reach = prepare_reach(ctx, n_vertices=spec.n_vertices)
+        reach = lawnmower_reach(ctx, spec.n_vertices)
         lawn = plan_lawnmower(ctx, reach)
         return _MapKit(ctx, plan, error, np.asarray(lawn.xy_m, float), driven_home(reach), reach)
 

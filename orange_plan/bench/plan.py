@@ -9,7 +9,7 @@ Three methods, side by side on the same scenarios and the same truths:
 (c) ``physics``: the tour planner with the energy model: ``planner(ctx, cost="physics")``.
 
 Each plan is flown by the simulator (``sim.simulator.simulate``, what ``orange-plan simulate``
-runs; plans go through their SPEC §4 GeoJSON and ``load_route``) under ``seeds`` truths drawn
+runs; plans go through their plan GeoJSON (docs/formats.md) and ``load_route``) under ``seeds`` truths drawn
 within the model's calibration uncertainty (``sim.perturb.calibration_truths``); the same
 truths and seeds for the three methods. Per flight:
 
@@ -18,7 +18,7 @@ truths and seeds for the three methods. Per flight:
 * stranded: the battery's usable energy ran out before the route ended, or the route did not
   end at home;
 * energy left at home: the truth's usable energy minus the energy drawn (negative: stranded);
-* coverage / bound: coverage over the physical bound of SPEC §4 with nothing kept back
+* coverage / bound: coverage over the physical bound of the plan summary (docs/json.md) with nothing kept back
   (``coverage_bound_m2``: the same for the three methods; the planner's own summary bound,
   which keeps its reserve back, is in ``--json`` as ``planner_bound_m2``).
 
@@ -266,7 +266,7 @@ def scenario_specs(names: Sequence[str], folder: Path, family_size: int = 4,
 def coverage_bound_m2(ctx) -> float:
     """Physical coverage bound of a scenario, the same for every method [m^2].
 
-    ``min(free area, 2 r L + pi r^2)`` (SPEC §4) with ``L`` the farthest the robot can drive:
+    ``min(free area, 2 r L + pi r^2)`` (docs/json.md) with ``L`` the farthest the robot can drive:
     all the usable energy over the least energy per metre anywhere on the map
     (``planning.tour.min_energy_per_m``), and with a time limit at most
     ``v_max D time_limit_s``. Nothing is kept back: the planner's own summary bound
@@ -301,7 +301,7 @@ def flight_of(ctx, sim, seed: int, bound_m2: float, turned_home_s=None) -> Fligh
 
 
 def _route_via_geojson(plan, folder: Path, name: str):
-    """The plan as ``orange-plan simulate`` reads it: its SPEC §4 file through ``load_route``."""
+    """The plan as ``orange-plan simulate`` reads it: its plan file (docs/formats.md) through ``load_route``."""
     from orange_plan.sim.route import load_route
 
     path = folder / f"{name}.geojson"
@@ -341,12 +341,11 @@ def at_confidence(planner: Planner, confidence: float | None) -> Planner:
 
 
 def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
-            methods=METHODS, n_vertices: int = 3000, sample_rate_Hz: float = 10.0,
+            methods=METHODS, n_vertices: int = 5000, sample_rate_Hz: float = 10.0,
             step: Callable[[str], None] = lambda s: None) -> _MapRun:
     """Plan with each method on one map and fly each plan under ``len(seeds)`` truths."""
     from orange_plan.bench.px4_rtl import EnergyRule, ReturnRule, fly_with_return_rule
     from orange_plan.planning.lawnmower import plan_lawnmower
-    from orange_plan.planning.reach import prepare_reach
     from orange_plan.sim.perturb import calibration_truths
     from orange_plan.sim.simulator import simulate
 
@@ -359,7 +358,7 @@ def run_map(ctx, planner: Planner | None, seeds: Sequence[int], truth_seed: int,
         try:
             if method in LAWNMOWERS:
                 if "lawnmower" not in plans:
-                    reach = prepare_reach(ctx, n_vertices=n_vertices)
+                    reach = lawnmower_reach(ctx, n_vertices)
                     plans["lawnmower"] = (plan_lawnmower(ctx, reach), driven_home(reach),
                                           reach)
                     lawn_s = time.perf_counter() - t0
@@ -429,15 +428,26 @@ def _homing_kit(ctx, plans: dict, n_vertices: int) -> _HomingKit:
     """The lawnmower's roadmap (every method's way home, so the rules compare on equal
     terms), built here when the lawnmower was not planned."""
     from orange_plan.planning.coverage import coverage_grid
-    from orange_plan.planning.reach import prepare_reach
 
     if "lawnmower" in plans:
         _, home, reach = plans["lawnmower"]
     else:
-        reach = prepare_reach(ctx, n_vertices=n_vertices)
+        reach = lawnmower_reach(ctx, n_vertices)
         home = driven_home(reach)
     grid = coverage_grid(ctx.world, ctx.scenario.mission.sensor_radius_m)
     return _HomingKit(home, reach.fast, grid)
+
+
+def lawnmower_reach(ctx, n_vertices: int):
+    """The roadmap and costs the lawnmower is planned and flown on: the tour planner's (its
+    size, seed 0 and cruise speed, ``tour.tour_speed_mps``), so the lawnmower route is the
+    one the planner's sweeps are measured against."""
+    from orange_plan.planning.plan import StartState
+    from orange_plan.planning.reach import prepare_reach
+    from orange_plan.planning.tour import tour_speed_mps
+
+    return prepare_reach(ctx, n_vertices=n_vertices, seed=0,
+                         speed_mps=tour_speed_mps(ctx, StartState()))
 
 
 def driven_home(reach):
@@ -523,7 +533,7 @@ def _median_curve(curves) -> tuple | None:
 
 
 def run_plan_bench(specs: Sequence[ScenarioSpec], planner: Planner | None, seeds: int = 20,
-                   methods=METHODS, n_vertices: int = 3000, sample_rate_Hz: float = 10.0,
+                   methods=METHODS, n_vertices: int = 5000, sample_rate_Hz: float = 10.0,
                    large_folder: Path | None = None,
                    step: Callable[[str], None] = lambda s: None,
                    on_progress: Callable[[PlanBenchResult], None] | None = None
@@ -536,7 +546,8 @@ def run_plan_bench(specs: Sequence[ScenarioSpec], planner: Planner | None, seeds
     planner : ``planner(ctx, cost=...) -> Plan`` for (b) and (c); None: (a) only
     seeds : truths per scenario (a family deals them round-robin over its maps)
     methods : subset of ``METHODS``
-    n_vertices : roadmap size of the lawnmower's detours and return paths
+    n_vertices : roadmap size of the lawnmower's detours and return paths (the planner's:
+        then the lawnmower (e) flies is the one the planner (c) starts from)
     sample_rate_Hz : simulator rate [Hz]
     large_folder : where to write the 2 km x 2 km map and time the planner on it (None: skip)
     on_progress : called with the partial result after each scenario

@@ -162,7 +162,7 @@ class ReturnDecision:
 
 
 def decide_return(ctx, frame, lawn_xy, home: HomePaths, rule: ReturnRule) -> ReturnDecision:
-    """Apply the rule to a simulated recording of the lawnmower (``frame``, SPEC §3 columns)."""
+    """Apply the rule to a simulated recording of the lawnmower (``frame``: the recording columns of docs/formats.md)."""
     t = frame["t_s"].to_numpy(float)
     power = frame["power_W"].to_numpy(float)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0

@@ -115,7 +115,8 @@ def bench_plan_cmd(
         help="Truths (simulated flights) per scenario and method (default 20; 2 with --quick).")] = None,
     quick: Annotated[bool, typer.Option(
         help="Small run for tests: the random family of one small map, 2 seeds, no 2 km map.")] = False,
-    vertices: Annotated[int, typer.Option(help="Roadmap vertices of the planners.")] = 5000,
+    vertices: Annotated[int, typer.Option(
+        help="Roadmap vertices of the planners and the lawnmower.")] = 5000,
     family_size: Annotated[int, typer.Option(help="Maps in the random family.")] = 4,
     large: Annotated[bool, typer.Option(
         help="Time (c) on the generated 2 km x 2 km map (300 obstacles, DEM).")] = True,
@@ -168,7 +169,8 @@ def bench_plan_cmd(
             stages(progress_console(as_json)) as step:
         specs = scenario_specs(names, Path(folder), 1 if quick else family_size,
                                {"width_m": 80.0, "height_m": 60.0} if quick else None)
-        result = run_plan_bench(specs, plan_fn, seeds, n_vertices=800 if quick else 3000,
+        # the lawnmower on the planners' roadmap: (e)'s route is the one (c) starts from
+        result = run_plan_bench(specs, plan_fn, seeds, n_vertices=800 if quick else vertices,
                                 large_folder=None if quick or not large else Path(folder) / "large",
                                 step=step, on_progress=save)
     save(result)

@@ -90,6 +90,8 @@ class Sweep:
     cells : 0 for a whole-map sweep, else the cells swept
     per_cell_angles : a cell sweep whose cells each have their own angle
     rivals : (pattern, closed_m2, open_m2) of every route joined and scored again
+    spread_m2 : area sensed before the closed-loop turn at each budget of
+        ``budget_factors`` [m^2]
     """
 
     xy_m: np.ndarray
@@ -100,6 +102,7 @@ class Sweep:
     cells: int = 0
     per_cell_angles: bool = False
     rivals: tuple = ()
+    spread_m2: tuple = ()
 
     @property
     def pattern(self) -> str:
@@ -160,6 +163,66 @@ def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
     max_length_m : no robot can drive farther (``tour.drivable_m``): the route is scored up
         to there only (a long sweep on a time-limited mission is mostly never reached) [m]
     """
+    return route_needs(ctx, cost, home, xy, time_left_s, step_m, max_length_m,
+                       reserve).score(grid, e_left_J, ctx.scenario.mission.sensor_radius_m)
+
+
+@dataclass(frozen=True)
+class RouteNeeds:
+    """What each point of a densely cut route needs under the two homing rules, whatever
+    the budget: the turn points for any energy left follow from it (``score``,
+    ``closed_m2_at``).
+
+    Attributes
+    ----------
+    full_xy_m : the route as given [m]; s_m : arclength of each dense point [m]
+    closed_J, open_J : energy the closed- and open-loop rules need at each dense point [J]
+    late : the way home from there would end past the time limit
+    used_J : planning-model energy used to reach each dense point [J]
+    length_m : the route's length [m]
+    """
+
+    full_xy_m: np.ndarray
+    s_m: np.ndarray
+    closed_J: np.ndarray
+    open_J: np.ndarray
+    late: np.ndarray
+    used_J: np.ndarray
+    length_m: float
+
+    def closed_turn_m(self, e_left_J: float) -> float:
+        """Arclength of the closed-loop turn with ``e_left_J`` to spend [m]."""
+        return float(self.s_m[_last_ok(~((self.closed_J > e_left_J) | self.late))])
+
+    def closed_m2_at(self, grid, e_left_J: float, r: float) -> float:
+        """Area sensed before the closed-loop rule turns home with ``e_left_J`` [m^2]."""
+        return _sensed_m2(grid, cut_path(self.full_xy_m, self.closed_turn_m(e_left_J)), r)
+
+    def closed_m2_over(self, grid, budgets_J, r: float) -> tuple[float, ...]:
+        """``closed_m2_at`` for each budget, the area counted once per distinct turn point
+        (a time limit or a route sensed whole turns them all at one point) [m^2]."""
+        area: dict[float, float] = {}
+        for s in (self.closed_turn_m(b) for b in budgets_J):
+            if s not in area:
+                area[s] = _sensed_m2(grid, cut_path(self.full_xy_m, s), r)
+        return tuple(area[self.closed_turn_m(b)] for b in budgets_J)
+
+    def score(self, grid, e_left_J: float, r: float) -> RouteScore:
+        """Both turn points and the area sensed up to each with ``e_left_J`` to spend."""
+        k_closed = _last_ok(~((self.closed_J > e_left_J) | self.late))
+        k_open = _last_ok(~((self.open_J > e_left_J) | self.late))
+        s = self.s_m
+        # the area from the route's own vertices (the dense cut only places the turn)
+        closed_m2 = _sensed_m2(grid, cut_path(self.full_xy_m, s[k_closed]), r)
+        open_m2 = (closed_m2 if k_open == k_closed
+                   else _sensed_m2(grid, cut_path(self.full_xy_m, s[k_open]), r))
+        return RouteScore(float(s[k_closed]), float(s[k_open]), closed_m2, open_m2,
+                          float(self.used_J[k_closed]), self.length_m)
+
+
+def route_needs(ctx, cost, home, xy, time_left_s: float, step_m: float,
+                max_length_m: float = math.inf, reserve=None) -> RouteNeeds:
+    """``RouteNeeds`` of a route (the arguments as ``score_route``'s)."""
     full = np.asarray(xy, float)
     length = float(np.sum(np.hypot(*np.diff(full, axis=0).T)))
     xy = densify(cut_path(full, max_length_m), step_m)
@@ -177,14 +240,7 @@ def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
     time_home = back_m / (home.speed_mps * max(ctx.conditions.duty_cycle, 1e-9))
     late = t + time_home > time_left_s
     s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
-    k_closed = _last_ok(~((closed > e_left_J) | late))
-    k_open = _last_ok(~((opened > e_left_J) | late))
-    r = ctx.scenario.mission.sensor_radius_m
-    # the area from the route's own vertices (the dense cut only places the turn)
-    closed_m2 = _sensed_m2(grid, cut_path(full, s[k_closed]), r)
-    open_m2 = closed_m2 if k_open == k_closed else _sensed_m2(grid, cut_path(full, s[k_open]), r)
-    return RouteScore(float(s[k_closed]), float(s[k_open]), closed_m2, open_m2,
-                      float(used[k_closed]), length)
+    return RouteNeeds(full, s, closed, opened, late, used, length)
 
 
 RETURN_LOOKUPS = 400
@@ -267,14 +323,19 @@ def cell_candidates(world, lanes: SweepLanes, home_xy, directions_deg, segments_
 def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: float | None = None,
                time_left_s: float = math.inf, max_length_m: float = math.inf,
                angles_deg=DEFAULT_ANGLES_DEG, rescore: int | None = None,
-               lanes: SweepLanes | None = None, cells: bool = True) -> Sweep | None:
-    """The complete sweep that senses most before the closed-loop rule turns it home.
+               lanes: SweepLanes | None = None, cells: bool = True,
+               run_sd: float | None = None) -> Sweep | None:
+    """The complete sweep expected to sense most before the closed-loop rule turns it home.
 
-    ``baseline_xy`` (the lawnmower's route, joined) is scored on the same terms and wins
-    when nothing beats it. Ties go to the larger guaranteed (open-loop) area. None when no
-    lane fits. ``cells``: the cell sweeps (``cell_candidates``) are candidates too. The
-    ``rescore`` best whole-map sweeps and the ``CELL_RESCORE`` best cell sweeps by the
-    straight-joined score are joined round obstacles and scored again.
+    The ``rescore`` best whole-map sweeps and the ``CELL_RESCORE`` best cell sweeps by the
+    straight-joined score (at ``e_left_J``) are joined round obstacles and scored again over
+    a spread of budgets (``budget_factors``: the run's energy differs from the model's by
+    ``run_sd``, default the model's ``discrepancy_rel_sd``, and a closed loop turns home
+    earlier or later with it); the one of the largest mean area over the spread is kept
+    (``choose_sweep``). ``baseline_xy`` (the lawnmower's route, joined) is scored on the same
+    terms, and another sweep replaces it only when it senses at least as much at every
+    budget of the spread. None when no lane fits. ``cells``: the cell sweeps
+    (``cell_candidates``) are candidates too.
     """
     r = ctx.scenario.mission.sensor_radius_m
     rescore = RESCORE if rescore is None else rescore
@@ -312,21 +373,61 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
                                          directions[:DECOMPOSITIONS], detours.segments_free):
             add(candidate)
     tried = len(straight)
+    budgets = e_left_J * budget_factors(ctx.model.discrepancy_rel_sd if run_sd is None
+                                        else run_sd)
+
+    def scored(xy, angle_deg, order, *cell) -> Sweep:
+        needs = route_needs(ctx, cost, home, xy, time_left_s, step, max_length_m,
+                            reach.reserve)
+        spread = needs.closed_m2_over(grid, budgets, r)
+        return Sweep(xy, angle_deg, order, needs.score(grid, e_left_J, r), tried, *cell,
+                     spread_m2=spread)
+
     joined = []
     for candidate in _to_rescore(straight, rescore):
         try:
             xy = join_pieces(home_xy, candidate.pieces, detours)[0]
         except PlanningError:  # its last lane end has no way home on this roadmap
             continue
-        joined.append(Sweep(xy, candidate.angle_deg, candidate.order, score(xy), tried,
-                            candidate.cells, candidate.per_cell_angles))
+        joined.append(scored(xy, candidate.angle_deg, candidate.order, candidate.cells,
+                             candidate.per_cell_angles))
+    base = None
     if baseline_xy is not None:
-        joined.append(Sweep(np.asarray(baseline_xy, float), math.nan, "baseline",
-                            score(baseline_xy), tried))
+        base = scored(np.asarray(baseline_xy, float), math.nan, "baseline")
+        joined.append(base)
     if not joined:
         return None
     rivals = tuple((s.pattern, s.score.closed_m2, s.score.open_m2) for s in joined)
-    return replace(max(joined, key=lambda s: rank(s.score)), rivals=rivals)
+    return replace(choose_sweep(joined, base, rank), rivals=rivals)
+
+
+BUDGET_QUANTILES = (0.1, 0.25, 0.5, 0.75, 0.9)
+"""Quantiles of the run's energy over the model's at which a sweep is scored [-]."""
+
+
+def budget_factors(run_sd: float) -> np.ndarray:
+    """Budgets a closed loop effectively flies on, as factors of the energy left [-].
+
+    A run whose energy is ``k`` times the model's (``k`` normal around 1 with sd
+    ``run_sd``, taken at ``BUDGET_QUANTILES``, never below 0.5) turns home about where the
+    model would with ``1 / k`` of the energy: the rule measures what it spends and learns
+    ``k`` on the way out. 1 alone when ``run_sd`` is 0.
+    """
+    from scipy.special import ndtri
+
+    k = 1.0 + max(float(run_sd), 0.0) * ndtri(np.asarray(BUDGET_QUANTILES, float))
+    return np.unique(1.0 / np.maximum(k, 0.5))
+
+
+def choose_sweep(joined, base, rank) -> Sweep:
+    """The sweep of the largest mean area over the budget spread (``Sweep.spread_m2``;
+    ties by ``rank`` of the score at the budget itself) among those that sense at least as
+    much as ``base`` (the baseline's sweep, None: no such bound) at every budget."""
+    if base is not None:
+        floor = np.asarray(base.spread_m2, float)
+        joined = [s for s in joined if s is base
+                  or bool(np.all(np.asarray(s.spread_m2, float) >= floor - 1e-6))]
+    return max(joined, key=lambda s: (round(float(np.mean(s.spread_m2)), 3), rank(s.score)))
 
 
 CELL_RESCORE = 2
