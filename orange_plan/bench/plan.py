@@ -613,7 +613,7 @@ def _fmt(value, spec: str, scale: float = 1.0) -> str:
 
 
 def plan_table(result: PlanBenchResult):
-    """The README table: one row per scenario and method (medians over the flights)."""
+    """The results table: one row per scenario and method (medians over the flights)."""
     from rich.table import Table
 
     title = (f"bench plan: medians over {result.seeds} truths per scenario"
