@@ -191,6 +191,21 @@ def test_a_sweep_replaces_the_lawnmower_only_if_it_senses_as_much_at_every_budge
     assert choose_sweep([greedy, steady], None, rank) is greedy  # no lawnmower: the mean
 
 
+def test_a_sweep_that_only_ties_the_lawnmower_does_not_replace_it():
+    """On a map every sweep covers whole, all tie on the coverage grid: the lawnmower's route
+    is kept even when a rival ranks higher at the budget itself (cheaper, say), since the
+    grid cannot show what the rival might miss between its cells."""
+    from orange_plan.planning.sweeps import choose_sweep
+
+    def rank(score):
+        return (score.closed_m2,)
+
+    base = _candidate([300, 300, 300], 300)
+    cheaper = _candidate([300, 300, 300], 301)
+    assert choose_sweep([cheaper, base], base, rank) is base
+    assert choose_sweep([base, cheaper], base, rank) is base
+
+
 def test_budget_factors_span_dearer_and_cheaper_runs():
     from orange_plan.planning.sweeps import budget_factors
 

@@ -422,12 +422,15 @@ def budget_factors(run_sd: float) -> np.ndarray:
 def choose_sweep(joined, base, rank) -> Sweep:
     """The sweep of the largest mean area over the budget spread (``Sweep.spread_m2``;
     ties by ``rank`` of the score at the budget itself) among those that sense at least as
-    much as ``base`` (the baseline's sweep, None: no such bound) at every budget."""
+    much as ``base`` (the baseline's sweep, None: no such bound) at every budget. A rival
+    that only ties ``base`` on the mean area does not replace it: the coverage grid cannot
+    tell the two apart, and what it cannot see the baseline's route is known to sense."""
     if base is not None:
         floor = np.asarray(base.spread_m2, float)
         joined = [s for s in joined if s is base
                   or bool(np.all(np.asarray(s.spread_m2, float) >= floor - 1e-6))]
-    return max(joined, key=lambda s: (round(float(np.mean(s.spread_m2)), 3), rank(s.score)))
+    return max(joined, key=lambda s: (round(float(np.mean(s.spread_m2)), 3), s is base,
+                                      rank(s.score)))
 
 
 CELL_RESCORE = 2
