@@ -41,6 +41,17 @@ def test_user_documents_cite_no_spec_section(name):
     assert not PROCESS_WORDS.search(text), PROCESS_WORDS.search(text)
 
 
+README_SECTION = re.compile(r"README(\s*[\"“:),;]|'s| section| table| quotes)")
+
+
+@pytest.mark.parametrize("name", [n for n in USER_DOCUMENTS if n.startswith("docs")])
+def test_doc_pages_point_to_pages_not_to_readme_sections(name):
+    """The README is a front page: a docs page that sends the reader to one of its sections
+    sends them nowhere."""
+    text = (REPO / name).read_text(encoding="utf-8")
+    assert not README_SECTION.search(text), README_SECTION.search(text)
+
+
 def test_readme_is_a_front_page():
     lines = (REPO / "README.md").read_text(encoding="utf-8").splitlines()
     assert len(lines) <= README_MAX_LINES
