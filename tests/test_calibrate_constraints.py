@@ -1,4 +1,4 @@
-"""Physical constraints in calibration (issue 9): every fitted coefficient stays in its
+"""Physical constraints in calibration: every fitted coefficient stays in its
 physical range, a coefficient the data cannot pin is held at its prior with the prior's
 uncertainty, and one the data pin beyond its range sits on the bound, reported.
 
@@ -145,7 +145,7 @@ def convert(tmp_path: Path, run: str) -> Path:
                     reason="real data not present in ../shared/data (BorealTC)")
 @pytest.mark.parametrize("run", ["01", "02"])
 def test_husky_run_calibrates_physically_and_predicts_other_runs(tmp_path, run):
-    # issue 9: one converted ASPHALT run, the scenario's whole model. Unconstrained, run 01
+    # one converted ASPHALT run, the scenario's whole model. Unconstrained, run 01
     # gave drag -45749 kg/m and run 02 rolling -800 kg, and the written scenario predicted
     # the other ASPHALT runs at up to +5306 % (README, calibration)
     out = tmp_path / "fitted.toml"
