@@ -160,6 +160,23 @@ def test_bmw_trip_regen_named_with_an_efficiency_and_a_gain_over_inertia():
     assert not math.isnan(both.cv_rmse_W)
 
 
+@pytest.mark.skipif(not (DATA / "tum_bmw_i3").is_dir(),
+                    reason="real data not present in ../shared/data")
+def test_a_trips_efficiency_interval_says_whether_it_pins_the_efficiency():
+    """The profile likelihood of the efficiency (every other coefficient refitted inside the
+    model at each value): TripA01 pins it well below 1 (0.78 fitted); TripA16, whose heater
+    runs unmodelled, cannot tell its 0.99 from plausible efficiencies, and its interval says
+    so by reaching both 1 and under 0.8."""
+    from orange_plan.bench.diagnose_real import bmw_regen
+
+    root = Path(__file__).resolve().parents[1]
+    (a01,) = bmw_regen(DATA, root / "scenarios" / "bmw_i3.toml", "tum_bmw_i3/TripA01.csv.gz")
+    assert a01.efficiency_low <= a01.regen_efficiency <= a01.efficiency_high < 0.95
+    assert a01.efficiency_low > 0.5
+    (a16,) = bmw_regen(DATA, root / "scenarios" / "bmw_i3.toml", "tum_bmw_i3/TripA16.csv.gz")
+    assert a16.efficiency_high == 1.0 and a16.efficiency_low < 0.8
+
+
 def test_bench_real_without_trips_is_one_line_exit_2(tmp_path):
     from conftest import run_cli
 
