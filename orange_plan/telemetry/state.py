@@ -60,10 +60,11 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
     Notes
     -----
     * Grade: ``z_m`` resampled on distance travelled (trapezoid of ``v_mps``), moving
-      average over ``grade_window_m``, differentiated to a slope ``s``. A recorded ``v_mps`` is
-      the speed along the path (wheels, a speedometer, the simulator), so ``s`` is rise over
-      distance along the slope: ``sin_t = s``. A speed derived from positions is horizontal,
-      ``s`` rise over run: ``sin_t = s/sqrt(1+s^2)``. No ``z_m``: flat.
+      average over ``grade_window_m``, differentiated to a slope ``s = dz / ds``; ``sin_t = s``
+      (clipped to [-1, 1]), ``cos_t = sqrt(1 - s^2)``. So the grade's power ``m g sin_t v``
+      is the rate of climb's ``m g dz/dt``, whether ``v_mps`` runs along the path (wheels, a
+      speedometer, the simulator) or is horizontal (positions, a GNSS ground speed). No
+      ``z_m``: flat.
     * Direction: heading of positions (held while standing); no positions: (1, 0).
     * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological: docs/guide/range.md), else the
       world's wind, else none.
@@ -150,19 +151,13 @@ def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:
     return cumulative_J(recording, np.abs(speed))
 
 
-def _speed_from_positions(recording: Recording) -> bool:
-    """Whether the recording's ``v_mps`` was derived from its (horizontal) positions."""
-    return any(issue.kind == "derived" and issue.rule.startswith("v_mps from positions")
-               for issue in recording.issues)
-
-
 def _grade(recording: Recording, speed: np.ndarray, window_m: float):
-    """(cos_t, sin_t) of the recording's grade (``recording_state``'s notes): the slope of
-    ``z_m`` against the distance travelled is the sine of the grade when that distance runs
-    along the path, its tangent when it is horizontal. Read as a tangent, a sine came out
-    ``1/sqrt(1 + sin^2)`` short (3 % at a 25 % grade): the fitted grade coefficient rose to
-    make up the average and left a residual cubic in the grade, which an in-battery loss
-    ``k P^2`` took up."""
+    """(cos_t, sin_t) of the recording's grade (``recording_state``'s notes): ``sin_t`` is the
+    slope of ``z_m`` against the distance the speed integrates to, so that ``sin_t v`` is
+    ``dz/dt``. Read as a tangent (``s / sqrt(1 + s^2)``), the slope of a speed along the path
+    came out ``1/sqrt(1 + s^2)`` short (3 % at a 25 % grade): the fitted grade coefficient
+    rose to make up the average and left a residual cubic in the grade, which an in-battery
+    loss ``k P^2`` took up."""
     n = len(speed)
     if not recording.has("z_m"):
         return np.ones(n), np.zeros(n)
@@ -178,9 +173,6 @@ def _grade(recording: Recording, speed: np.ndarray, window_m: float):
     window = max(3, round(window_m / step_m))
     z_smooth = smooth(z_grid, window + 1 - window % 2)
     slope = np.interp(s, grid, np.gradient(z_smooth, step_m))
-    if _speed_from_positions(recording):
-        hyp = np.sqrt(1.0 + slope**2)
-        return 1.0 / hyp, slope / hyp
     sin_t = np.clip(slope, -1.0, 1.0)
     return np.sqrt(1.0 - sin_t**2), sin_t
 
