@@ -114,7 +114,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "hover": ("aerial",), "rolling": ("ground",), "surface_rolling": ("ground",),
     "aero_drag": ("aerial",), "grade": ("ground",), "inertia": ("ground", "aerial"),
     "regen": ("ground",), "turning": ("ground",), "wind": ("aerial",),
-    "payload": ("ground", "aerial"), "hvac": ("ground", "aerial"),
+    "payload": ("ground", "aerial"), "hvac": ("ground", "aerial", "marine"),
     "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
     "drift": ("ground", "aerial", "marine"), "surface_label": ("ground",),
     "hvac_trip": ("ground", "aerial"),
