@@ -112,7 +112,7 @@ DEFAULT_PRIOR_RELATIVE_STDERR = 0.10
 DEFAULT_DISCREPANCY_REL_SD = 0.25
 """A priori run-to-run standard deviation of a whole run's energy, relative to the predicted
 energy [-], for a model not calibrated on several runs. Measured on the real recordings
-(README "Reserve"): the upper semi-deviation of calibrated models' held-out whole-run errors
+(docs/benchmarks/calibration.md): the upper semi-deviation of calibrated models' held-out whole-run errors
 (``identify.calibrate``) is 0.35 on the Husky A200 (44 runs) and 0.086 on the BMW i3 (16);
 0.25 is their root mean square, one value per robot."""
 

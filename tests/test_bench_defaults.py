@@ -1,4 +1,4 @@
-"""Issue #13 item 7: after ``pip install .`` the benches find the shipped examples (or ask for
+"""After ``pip install .`` the benches find the shipped examples (or ask for
 the folder clearly), and long commands show progress on a terminal (never with --json)."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """bench.mission (``orange-plan bench mission``): a quick run on a tiny world completes with
 every column, and the energy accounting strands a robot far heavier than its model (structure
-and bookkeeping, never the measured figures of README)."""
+and bookkeeping, never the measured figures of docs/benchmarks/mission.md)."""
 
 from __future__ import annotations
 

@@ -38,8 +38,8 @@ def test_grid_reference_on_flat_ground_is_the_straight_line(tmp_path):
     straight = evaluate_path(exact, [[2, 2], [38, 2]], "line")
     assert evaluate_path(exact, grid.path((2, 2), (38, 2)), "grid").energy_J == pytest.approx(
         straight.energy_J, rel=1e-9)
-    # the grid field sums SPEC §7 edge weights (cruise throughout): compare with the straight
-    # line's §7 figure, not with its driven profile (ramps and stops on top)
+    # the grid field sums the energy model's edge weights (cruise throughout): compare with
+    # the straight line's cruise figure, not with its driven profile (ramps and stops on top)
     reference = evaluate_path(replace(exact, accel_max_mps2=None), [[2, 2], [38, 2]], "line")
     assert grid.energies_from((2, 2))[grid.nearest((38, 2))] == pytest.approx(
         reference.energy_J, rel=1e-2)

@@ -145,9 +145,9 @@ def convert(tmp_path: Path, run: str) -> Path:
                     reason="real data not present in ../shared/data (BorealTC)")
 @pytest.mark.parametrize("run", ["01", "02"])
 def test_husky_run_calibrates_physically_and_predicts_other_runs(tmp_path, run):
-    # one converted ASPHALT run, the scenario's whole model. Unconstrained, run 01
-    # gave drag -45749 kg/m and run 02 rolling -800 kg, and the written scenario predicted
-    # the other ASPHALT runs at up to +5306 % (README, calibration)
+    # one converted ASPHALT run, the scenario's whole model. Unconstrained, run 01 gave drag
+    # -45749 kg/m and run 02 rolling -800 kg, and the written scenario predicted the other
+    # ASPHALT runs at up to +5306 % (docs/guide/recordings.md, constraints measured)
     out = tmp_path / "fitted.toml"
     code, stdout, stderr = run_cli("calibrate", convert(tmp_path, run), "--scenario",
                                    REPO / "scenarios" / "husky_a200.toml", "-o", out, "--json")

@@ -26,7 +26,7 @@ pack or speed) run with ``-m slow``."""
 ROUND_TRIP = [pytest.param(n, marks=pytest.mark.slow)
               if n.startswith("rusti_v2_") and n != RUSTI_V2 else n for n in SCENARIOS]
 REAL = {"husky_a200": "borealtc/ASPHALT/pro_00.csv", "bmw_i3": "tum_bmw_i3/TripA01.csv.gz"}
-"""Scenarios with real recordings (husky_a200 + pro_00 is issue #8's failing case)."""
+"""Scenarios with real recordings (husky_a200 + pro_00 once failed to calibrate)."""
 REAL_ROWS = 3000
 """Rows of a real log kept (the BMW trip's first 5 minutes keep the test fast)."""
 

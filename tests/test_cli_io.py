@@ -1,4 +1,4 @@
-"""Issue #13 items 3 and 5: output paths are checked up front (one reusable check), and the
+"""Output paths are checked up front (one reusable check), and the
 CLI's own argument errors, CSV delimiters and folders-as-files give one line with exit 2."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``orange-plan plan``: the SPEC §4 file, the JSON summary, refusals, and simulate flying it."""
+"""``orange-plan plan``: the plan file (docs/formats.md), the JSON summary, refusals, and simulate flying it."""
 
 from __future__ import annotations
 
@@ -20,7 +20,8 @@ ARRAYS = ("t_s", "speed_mps", "energy_used_J", "energy_to_home_J", "margin_J")
 
 
 def check_plan_file(data: dict, home) -> None:
-    """Validate a plan against SPEC §4 (every rule stated there, nothing more)."""
+    """Validate a plan against its format (docs/formats.md: every rule stated there, nothing
+    more)."""
     assert data["type"] == "FeatureCollection"
     kinds = [f["properties"]["kind"] for f in data["features"]]
     assert kinds.count("tour") == 1 and kinds.count("covered") == 1

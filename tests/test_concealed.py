@@ -69,12 +69,12 @@ def completed_powers(case):
     """(scenario model power, completed model power) along the recording [W]."""
     ctx, truth = case.ctx, case.truth
     # z_m is the DEM's (no noise): a short grade window keeps the no-recovery clip honest
-    state = recording_state(case.recording, ctx.world, ctx.conditions.sensor_rate_Hz,
+    state = recording_state(case.recording, ctx.world, conditions=ctx.conditions,
                             grade_window_m=GRADE_WINDOW_M)
     seen_W = np.asarray(ctx.model.power_W(state), float)
     if "surface_label" in truth:  # the truth rolls per surface of the map as drawn
         ctx, truth = surfaced_truth(case)
-        state = recording_state(case.recording, ctx.world, ctx.conditions.sensor_rate_Hz,
+        state = recording_state(case.recording, ctx.world, conditions=ctx.conditions,
                                 grade_window_m=GRADE_WINDOW_M)
     in_model = [t for t in MODEL_TERMS if t in truth]
     ids = [*ctx.model.term_ids, *(t for t in in_model if not ctx.model.has(t))]

@@ -82,7 +82,7 @@ def test_the_simulator_draws_what_the_path_cost_predicts_under_the_same_conditio
        heading=st.floats(-math.pi, math.pi), length_m=st.floats(0.5, 20.0))
 def test_segment_energy_under_conditions_matches_a_hand_built_state(flat, duty, rate_Hz, wind_x,
                                                                     wind_y, heading, length_m):
-    """Reference: the model's SPEC §7 segment energy of a MotionState built by hand from the
+    """Reference: the model's segment energy (docs/guide/range.md, Eq. 4) of a MotionState built by hand from the
     same duty cycle, rate and wind on flat default ground (no map look-ups, no Steps)."""
     conditions = Conditions(duty, rate_Hz, (wind_x, wind_y))
     a = np.array([20.0, 15.0])

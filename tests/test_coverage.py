@@ -42,7 +42,7 @@ def rect_world(folder: Path, width_m=20.0, height_m=10.0, boxes=(), name="rect.g
     """A rectangle with box obstacles, loaded through the map reader."""
     features = [feature("boundary", "Polygon", box(0, 0, width_m, height_m))]
     features += [feature("obstacle", "Polygon", box(*b)) for b in boxes]
-    return World(load_map(write_map(folder, features, name=name)), 0.03, "default", (0.0, 0.0),
+    return World(load_map(write_map(folder, features, name=name)), 0.03, "default",
                  (0.5, 0.5))
 
 
@@ -146,7 +146,7 @@ def test_best_sweep_angle_runs_along_the_long_side(tmp_path):
 
 def test_best_sweep_angle_follows_a_rotated_strip():
     strip = shapely.affinity.rotate(shapely.box(0, 0, 60, 6), 30, origin=(0, 0))
-    world = World(Map(strip, (), (), (), None, None, None, Path("strip")), 0.03, "d", (0, 0),
+    world = World(Map(strip, (), (), (), None, None, None, Path("strip")), 0.03, "d",
                   (1, 1))
     assert best_sweep_angle_deg(world, 1.0) == 30.0
 
@@ -380,7 +380,7 @@ def big_world(n_obstacles=300, seed=1) -> World:
     size = rng.uniform(5, 40, (n_obstacles, 2))
     boxes = tuple(shapely.box(*(c - s / 2), *(c + s / 2)) for c, s in zip(centre, size))
     m = Map(shapely.box(0, 0, 2000, 2000), boxes, (), (), None, None, None, Path("big"))
-    return World(m, 0.03, "default", (0.0, 0.0), (1.0, 1.0))
+    return World(m, 0.03, "default", (1.0, 1.0))
 
 
 def test_large_map_is_fast_and_correct():

@@ -61,7 +61,7 @@ def cases(draw):
 
 def make_world(w, h, boxes) -> World:
     m = Map(shapely.box(0, 0, w, h), boxes, (), (), None, None, None, Path("random"))
-    return World(m, 0.03, "default", (0.0, 0.0), (0.0, 0.0))
+    return World(m, 0.03, "default", (0.0, 0.0))
 
 
 @pytest.mark.timeout(300)

@@ -225,7 +225,7 @@ DATA = REPO.parent / "shared" / "data"
 @pytest.mark.skipif(not (DATA / "borealtc").is_dir(),
                     reason="real data not present in ../shared/data (BorealTC)")
 def test_real_husky_run_turning_scrub_is_found_with_the_a_priori_scenario():
-    """README "Diagnosis on the real recordings": husky_a200 carries turning_torque with no
+    """On the real recordings: husky_a200 carries turning_torque with no
     a-priori value (0: left out); on a converted asphalt run diagnosis names the turning
     scrub and the held-out RMSE falls by a third or more."""
     from orange_plan.telemetry.importers import read_log

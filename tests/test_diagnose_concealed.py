@@ -7,10 +7,11 @@ Why it is stated this way: the truth is known only because the recording was gen
 the check is against the generator's own parameters (an independent reference: the generator
 adds hvac and the battery losses by its own formulas, the rest through the simulator), and a
 named term must be one that was concealed. Seeds 0 here; ``orange-plan bench diagnose`` runs
-seeds the tests never saw (101-103) and reports the totals in the README.
+seeds the tests never saw (101-103) and reports the totals (docs/benchmarks/diagnose.md).
 
 Cases the diagnosis does not yet get right are marked ``xfail(strict=True)`` with the reason
-measured: if one starts passing, the mark must go (README "Diagnosis: measured").
+measured: if one starts passing, the mark must go (docs/benchmarks/diagnose.md, "What is
+missed, and why").
 """
 
 from __future__ import annotations
@@ -18,15 +19,23 @@ from __future__ import annotations
 import pytest
 
 from orange_plan.bench.diagnose import concealed_id, oracle, with_stated_limits
-from orange_plan.identify.diagnose import AS_GOOD_HELD_OUT, MASK_EACH_OTHER, MIN_T, diagnose
+from orange_plan.identify.diagnose import (
+    AS_GOOD_HELD_OUT,
+    DEFAULT_SETTINGS,
+    MASK_EACH_OTHER,
+    diagnose,
+)
 from orange_plan.sim.concealed import CONCEALABLE, PAIRS, concealed_case
+
+MIN_T = DEFAULT_SETTINGS.min_t
+MIN_GAIN = DEFAULT_SETTINGS.min_gain
 
 SEED = 0
 Z_MAX = 3.0
 """A recovered parameter is within its uncertainty when |fitted - true| <= 3 sd."""
 
 NOT_YET: dict[str, str] = {
-    # name -> the measured reason, at seed 0 (30 min, 10 Hz): see README "Diagnosis: measured"
+    # name -> the measured reason, at seed 0 (30 min, 10 Hz): see docs/benchmarks/diagnose.md
     "drift": "a 4.2 W drift at t = 3.7 under the residual's autoregressive long-run variance "
              "(4.5 under batch means); told the drift, the oracle gives "
              "the same 3.7: the recording does not carry it at MIN_T = 4",
@@ -136,7 +145,7 @@ def test_a_term_the_recording_cannot_tell_apart_is_offered_as_an_alternative():
     as the payload does (within MIN_GAIN). Diagnosis names one of them; the other must be
     offered as an alternative, with the held-out RMSEs it was measured at, and the evidence
     must say the recording cannot tell them apart."""
-    from orange_plan.identify.diagnose import MIN_GAIN, candidates, fit_design
+    from orange_plan.identify.diagnose import candidates, fit_design
 
     case = concealed_case(["wind", "payload"], 6)
     result = diagnose(case.recording, case.ctx)

@@ -21,8 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.identify.diagnose import (
-    MIN_EFFECT_SHARE,
-    MIN_T,
+    DEFAULT_SETTINGS,
     candidates,
     detection_limit_W,
     diagnose,
@@ -30,6 +29,9 @@ from orange_plan.identify.diagnose import (
     judge,
 )
 from orange_plan.sim.concealed import concealed_case
+
+MIN_T = DEFAULT_SETTINGS.min_t
+MIN_EFFECT_SHARE = DEFAULT_SETTINGS.min_effect_share
 
 LINEAR = ("battery_temperature", "turning", "inertia")
 """Candidates of one coefficient whose column does not depend on the residual (a payload's
@@ -119,9 +121,9 @@ def test_the_winds_limit_by_hand():
     from types import SimpleNamespace
 
     wind = _candidate("wind")
-    d = SimpleNamespace(mean_power_W=10.0)
+    d = SimpleNamespace(mean_power_W=10.0, settings=DEFAULT_SETTINGS)
     current = SimpleNamespace(rmse_W=2.0)
     assert detection_limit_W(d, wind, None, current, 100.0) == pytest.approx(0.7690415, rel=1e-6)
     # a large share floor wins
-    assert detection_limit_W(SimpleNamespace(mean_power_W=1e3), wind, None, current,
-                             100.0) == pytest.approx(10.0)
+    big = SimpleNamespace(mean_power_W=1e3, settings=DEFAULT_SETTINGS)
+    assert detection_limit_W(big, wind, None, current, 100.0) == pytest.approx(10.0)

@@ -1,6 +1,8 @@
-"""What a user of the package reads (README, docs/, --help) is self-contained: no citation of
-SPEC sections or DESIGN.md, which users never have, and no words of how it was built (issue
-numbers, "this stop", commit hashes) that a user cannot place."""
+"""What a user of the package reads (docs/, --help and the README front page) is
+self-contained: no citation of the contract's sections or the design notes, which users never
+have, and no words of how it was built (issue numbers, "this stop", commit hashes) that a user
+cannot place; the package's and the tests' docstrings and comments cite none of those
+either."""
 
 from __future__ import annotations
 
@@ -70,3 +72,36 @@ def test_json_document_names_every_range_and_reach_key():
                 "home_reachable", "energy_goal_to_home_J", "margin_J", "speeds_clipped",
                 "energy_predicted_J", "holdout_rmse_W", "first_row"):
         assert re.search(rf"`([^`]*[.\]])?{key}`", doc), key
+
+
+SOURCE_CITATION = re.compile(r"\bSPEC\b|DESIGN\.md|§|(?i:issue #?\d)"
+                             r"|README(\s*[\"“:),;]|'s| section| table| quotes)")
+"""What a docstring or comment may not cite: sections of the project's contract and design
+notes, which a reader of the code does not have, issue numbers, and sections of the README
+(they move; docs/ pages stay)."""
+
+
+def _docstrings_and_comments(path):
+    """(line, text) of every docstring, bare string statement and comment of a module."""
+    import ast
+    import io
+    import tokenize
+
+    source = path.read_text(encoding="utf-8")
+    found = [(tok.start[0], tok.string) for tok in
+             tokenize.generate_tokens(io.StringIO(source).readline)
+             if tok.type == tokenize.COMMENT]
+    for node in ast.walk(ast.parse(source)):
+        if (isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+                and isinstance(node.value.value, str)):
+            found.append((node.lineno, node.value.value))
+    return found
+
+
+def test_docstrings_and_comments_cite_no_spec_design_issue_or_readme_section():
+    """The package's and the tests' docstrings and comments state facts or point to docs/
+    pages: no contract or design sections, no issue numbers, no sections of the README."""
+    cited = [f"{path.relative_to(REPO)}:{line}: {SOURCE_CITATION.search(text).group(0)}"
+             for folder in ("orange_plan", "tests") for path in sorted((REPO / folder).rglob("*.py"))
+             for line, text in _docstrings_and_comments(path) if SOURCE_CITATION.search(text)]
+    assert not cited, "\n".join(cited)

@@ -16,7 +16,7 @@ from orange_plan.world.geomap import load_map
 SCENARIOS = sorted((REPO / "scenarios").glob("*.toml"))
 MAPS = sorted((REPO / "maps").glob("*.geojson"))
 
-# One example per robot system of issue #2 (the paper's robots and its future work).
+# One example per robot system (the paper's robots and its future work).
 EXPECTED = ["rusti_v1_box", "rusti_v1_ramp", "ar_drone_wind", "kiwibot_campus", "vacuum_home",
             "marine_survey"] + [f"rusti_v2_{s}_{b}_{v}" for s in ("grass", "asphalt", "tile")
                                 for b in ("1500mAh", "2200mAh") for v in ("v0544", "v0952")]

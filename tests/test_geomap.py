@@ -1,4 +1,4 @@
-"""Map GeoJSON loading and validation (SPEC §1)."""
+"""Map GeoJSON loading and validation (docs/formats.md, map)."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def test_not_json_and_not_a_collection(tmp_path):
 
 
 def test_optional_origin_member_is_accepted_and_checked(tmp_path):
-    """SPEC §1: the WGS84 point at x = y = 0, a foreign member of the FeatureCollection."""
+    """The map's origin: the WGS84 point at x = y = 0, a foreign member of the FeatureCollection."""
     m = load_map(write_map(tmp_path, origin={"lat_deg": 48.137, "lon_deg": 11.575, "alt_m": 520.0}))
     assert (m.origin.lat_deg, m.origin.lon_deg, m.origin.alt_m) == (48.137, 11.575, 520.0)
     assert load_map(write_map(tmp_path, name="plain.geojson")).origin is None

@@ -1,4 +1,4 @@
-"""Issue #13 item 4: limits. Absurd or out-of-contract input is one line with exit 2, no raw
+"""Limits. Absurd or out-of-contract input is one line with exit 2, no raw
 library warning reaches stderr, and ``--json`` stdout stays one JSON object."""
 
 from __future__ import annotations

@@ -255,7 +255,6 @@ def test_malformed_wpl_files_get_one_line_and_exit_2(aerial, tmp_path, text, mes
 
 @pytest.mark.parametrize("text, message", [
     ("x_m,y_m\n2,2\nnan,3\n", "row 2: x_m is not a number"),
-    ("x_m,y_m,z_m\n2,2,0\n5,5,-1\n", "below home"),
     ("x_m,y_m,speed_mps\n2,2,1\n5,5,-1\n", "must be >= 0.01"),
     ("x_m,y_m\n2,2\n5000,5\n", "outside the map"),
     ("x_m,y_m\n2,2\n", "at least one waypoint"),
@@ -487,7 +486,8 @@ def test_the_robot_turns_a_corner_at_most_at_the_arcs_speed(small, turn_deg, rad
     ``sqrt(accel_max r / tan(theta / 2))`` (one sample's acceleration of slack) where the legs
     meet: the last sample of the first leg and the first of the next."""
     from orange_plan.physics.pathcost import max_step_m
-    from orange_plan.planning.mission_check import _drive, _robot, _stages, _with_corners
+    from orange_plan.planning.mission_motion import drive
+    from orange_plan.planning.mission_stages import mission_stages, robot_limits, with_corners
 
     ctx = small["aerial"]
     theta = math.radians(turn_deg)
@@ -496,9 +496,9 @@ def test_the_robot_turns_a_corner_at_most_at_the_arcs_speed(small, turn_deg, rad
     mission = Mission((MissionWaypoint(2.0, 2.0, 10.0, speed),
                        MissionWaypoint(*corner, 10.0, speed, 0.0, radius),
                        MissionWaypoint(*after, 10.0)), returns_home=False)
-    robot = _robot(ctx)
-    stages = _with_corners(_stages(mission, robot), mission, robot)
-    samples = _drive([(None, stages)], ctx.world, robot, ctx.conditions,
+    robot = robot_limits(ctx)
+    stages = with_corners(mission_stages(mission, robot), mission, robot)
+    samples = drive([(None, stages)], ctx.world, robot, ctx.conditions,
                      max_step_m(ctx.world))
     a, dt = robot.accel_mps2, 0.1
     allowed = math.sqrt(a * radius / math.tan(theta / 2))

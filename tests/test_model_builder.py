@@ -1,6 +1,6 @@
 """model_builder: one table of lumped <-> physical maps read both ways, one term builder.
 
-The reference is SPEC §7 written out by hand from the scenario mapping (no package code):
+The reference is the energy model (docs/guide/range.md) written out by hand from the scenario mapping (no package code):
 ``Omega = (1 - eta_2)(1 - eta_3)``, ``ancillary_W = (s0 + compute + comm) / (1 - eta_4)``...
 """
 
@@ -52,7 +52,7 @@ def physical(draw):
 
 
 def by_hand(v: dict) -> tuple[dict, dict]:
-    """Lumped coefficients and their physical readings, SPEC §7 by hand."""
+    """Lumped coefficients and their physical readings, the energy model by hand."""
     omega = (1 - v["losses.motor"]) * (1 - v["losses.mechanical"])
     keep = 1 - v["losses.ancillary"]
     load = v["ancillary.s0_W"] + v["ancillary.compute_W"] + v["ancillary.comm_W"]

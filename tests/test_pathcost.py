@@ -1,4 +1,4 @@
-"""SPEC §7 path energy: ramps over a DEM, surfaces crossed, turning at interior vertices."""
+"""Path energy (docs/guide/range.md, Eq. 7): ramps over a DEM, surfaces crossed, turning at interior vertices."""
 
 from __future__ import annotations
 
@@ -39,8 +39,8 @@ def reference_model(turn_J_per_rad: float = 0.0) -> EnergyModel:
     return EnergyModel(terms, theta, omega=OMEGA)
 
 
-def world_of(map_path, default_crr=0.05, home=(1.0, 1.5), wind=(0.0, 0.0)) -> World:
-    return World(load_map(map_path), default_crr, "default", wind, home)
+def world_of(map_path, default_crr=0.05, home=(1.0, 1.5)) -> World:
+    return World(load_map(map_path), default_crr, "default", home)
 
 
 def ramp_world(tmp_path, corner: bool) -> World:
@@ -224,7 +224,7 @@ def test_segment_energy_additive_when_split(s, length, split, duty):
 def flat_windy_world(tmp_path_factory):
     folder = tmp_path_factory.mktemp("flat")
     boundary = feature("boundary", "Polygon", [[[0, 0], [50, 0], [50, 50], [0, 50], [0, 0]]])
-    return world_of(write_map(folder, [boundary]), home=(1.0, 1.0), wind=WINDY.wind_xy_mps)
+    return world_of(write_map(folder, [boundary]), home=(1.0, 1.0))
 
 
 WINDY = Conditions(0.7, 0.0, (2.0, -1.0))  # the additivity test's duty cycle and wind

@@ -1,4 +1,4 @@
-"""The plan figure (issue #8 item 4): PNG written atomically, map drawing reusable and fast."""
+"""The plan figure: PNG written atomically, map drawing reusable and fast."""
 
 from __future__ import annotations
 
@@ -164,7 +164,7 @@ def bare_world(elevation=None, surfaces=(), obstacles=(), no_go=(), size=50.0) -
     m = Map(boundary=box(0, 0, size, size), obstacles=tuple(obstacles), no_go=tuple(no_go),
             surfaces=tuple(surfaces), home_xy_m=(1.0, 1.0), default_surface=None,
             elevation=elevation, path=Path("bare.geojson"))
-    return World(m, 0.03, "default", (0.0, 0.0), (1.0, 1.0))
+    return World(m, 0.03, "default", (1.0, 1.0))
 
 
 def test_draw_map_without_surfaces_or_dem():

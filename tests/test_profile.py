@@ -56,7 +56,7 @@ def test_planned_duration_and_energy_of_a_straight_run_by_hand(tmp_path):
     ref = path_energy(model, ctx.world, path, v, ctx.conditions)
     driven = path_energy(model, ctx.world, path, v, ctx.conditions, a)
     p_anc = float(model.ancillary_power_W(_flat(ctx)))
-    assert ref.total_J == pytest.approx(p_anc * 18.0 / v)  # SPEC §7: L / (v D)
+    assert ref.total_J == pytest.approx(p_anc * 18.0 / v)  # the energy model's ancillary energy: L / (v D)
     assert driven.duration_s == pytest.approx(18.0 / v + v / a, abs=3 * SAMPLE_DT_S)
     assert driven.total_J == pytest.approx(p_anc * driven.duration_s, rel=1e-9)
     assert driven.reference_J == pytest.approx(ref.total_J)

@@ -1,4 +1,4 @@
-"""Operational range: SPEC §7 by hand against ``orange-plan range --json``; range properties."""
+"""Operational range: the energy model (docs/guide/range.md) by hand against ``orange-plan range --json``; range properties."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ G = 9.81
 
 
 def spec_by_hand(scenario_file):
-    """SPEC §7 straight from the TOML (and the map's default_surface), no package code."""
+    """The range equations straight from the TOML (and the map's default_surface), no package code."""
     sc = tomllib.loads(scenario_file.read_text(encoding="utf-8"))
     robot, losses, bat, anc = sc["robot"], sc["losses"], sc["battery"], sc["ancillary"]
     bat = {"cycles": 0, "age_days": 0, "k1_per_cycle": 0, "k2_per_day": 0, **bat}
@@ -185,7 +185,7 @@ def test_generalised_range_refuses_a_model_that_draws_nothing(tmp_path):
 
 def test_time_limit_bounds_the_range(tmp_path):
     """A 60 s mission cannot take the robot further than v_max D 60 s, whatever the battery:
-    the SPEC §7 figures stay, flagged, with the range the limit allows."""
+    the energy model's figures stay, flagged, with the range the limit allows."""
     ctx = load_context(write_scenario(tmp_path, set={"mission.time_limit_s": 60.0}))
     free = simplified_range(ctx.scenario, ctx.model, ctx.world.default_crr)
     assert free.mission_time_s > 60.0 and free.within_time_limit and free.reason is None
@@ -197,7 +197,7 @@ def test_time_limit_bounds_the_range(tmp_path):
         # time binds before energy at every speed here, so the fastest speed goes furthest
         assert r.time_limited.v_opt_mps == pytest.approx(v_max)
         assert r.time_limited.d_max_m == pytest.approx(60.0 * v_max * duty)
-    assert report.simplified.d_max_m == pytest.approx(free.d_max_m)  # SPEC §7 Eq. 6 unchanged
+    assert report.simplified.d_max_m == pytest.approx(free.d_max_m)  # Eq. 6 unchanged
 
 
 def test_a_loose_time_limit_changes_nothing(tmp_path):

@@ -1,4 +1,4 @@
-"""Recordings (SPEC §3): reading, every validation rule, derived channels, motion state."""
+"""Recordings (docs/formats.md, docs/guide/recordings.md): reading, every validation rule, derived channels, motion state."""
 
 from __future__ import annotations
 
@@ -290,7 +290,21 @@ def test_surface_column_maps_through_the_world(tmp_path):
     assert state.crr.tolist() == [0.1, 0.1, 0.05]
     assert state.surface_code.tolist() == [0, 0, -1]
     assert state.sensor_rate_Hz.tolist() == [3.0, 3.0, 3.0]
-    assert np.allclose(state.wind_x_mps, ctx.world.wind_xy_mps[0])
+    assert np.allclose(state.wind_x_mps, 0.0)  # no wind columns, no conditions: calm
+
+
+def test_a_recording_without_wind_columns_takes_the_conditions_wind(tmp_path):
+    """A session's measured wind (``conditions.with_wind``) reaches the samples of a
+    recording that carries no wind: the conditions are the one holder of the wind."""
+    ctx = load_context(write_scenario(tmp_path, set={"environment.wind_speed_mps": 3.0,
+                                                     "environment.wind_from_deg": 90.0}))
+    df = pd.DataFrame({"t_s": [0, 1, 2.0], "power_W": 1.0, "v_mps": 1.0})
+    measured = ctx.conditions.with_wind((1.5, -0.5))
+    state = recording_state(recording_from_frame(df), ctx.world, conditions=measured)
+    assert np.allclose(state.wind_x_mps, 1.5) and np.allclose(state.wind_y_mps, -0.5)
+    with_columns = df.assign(wind_mps=2.0, wind_from_deg=0.0)  # from the north: blows south
+    state = recording_state(recording_from_frame(with_columns), ctx.world, conditions=measured)
+    assert np.allclose(state.wind_x_mps, 0.0, atol=1e-12) and np.allclose(state.wind_y_mps, -2.0)
 
 
 # --- invariants -----------------------------------------------------------------------------------
@@ -351,3 +365,31 @@ def test_a_column_named_twice_is_refused():
                       columns=["t_s", "power_W", "v_mps", " power_W"])
     with pytest.raises(RecordingError, match="column 'power_W' appears twice"):
         recording_from_frame(df)
+
+
+def test_a_climb_on_the_spot_converts_to_a_recording_that_loads(tmp_path):
+    """A drone climbing at 3 m/s (its 3-D speed in ``v_mps``) while its position drifts by
+    millimetres has no heading: the derived yaw rate is held by the horizontal speed, so the
+    written recording passes its own loader's range check (|yaw rate| <= 100 rad/s)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 30.0, 0.02)
+    drift = np.cumsum(rng.normal(0.0, 1e-3, (2, t.size)), axis=1)
+    frame = pd.DataFrame({"t_s": t, "power_W": 400.0, "x_m": 2.0 + drift[0],
+                          "y_m": 1.0 + drift[1], "z_m": 3.0 * t, "v_mps": 3.0})
+    path = tmp_path / "climb.csv"
+    write_recording(recording_from_frame(frame, "climb"), path)
+    yaw = load_recording(path).frame["yaw_rate_radps"].to_numpy()
+    assert np.all(np.abs(yaw) < 1.0)
+
+
+def test_the_wadl_track_and_a_recording_share_one_yaw_rate_derivation():
+    """The WADL importer's track yaw rate is the generic derivation without smoothing: a
+    square flown at 2 m/s turns by pi/2 at each corner and holds its heading on the spot."""
+    from orange_plan.telemetry.derive import position_yaw_rate_radps
+
+    t = np.arange(0.0, 41.0)
+    x = np.interp(t, [0, 5, 15, 25, 35, 40], [0, 0, 20, 20, 0, 0])
+    y = np.interp(t, [0, 5, 15, 25, 35, 40], [0, 0, 0, 20, 20, 20])
+    yaw = position_yaw_rate_radps(x, y, t, still_mps=0.5, window=1)
+    assert np.trapezoid(yaw, t) == pytest.approx(np.pi, abs=1e-9)  # two left turns
+    assert np.all(yaw[:5] == 0.0) and np.all(yaw[36:] == 0.0)

@@ -1,4 +1,4 @@
-"""Non-physical recording values are refused (issue 9, recording rule 3b): an infinite value
+"""Non-physical recording values are refused (recording rule 3b, ``telemetry.recording``): an infinite value
 or one outside a column's generous physical range stops predict and calibrate with exit 2 and
 one line naming the column, the value, the row and the range; a file that is accepted never
 gives null energies."""
@@ -23,7 +23,7 @@ BAD_ROW = 3
 
 
 def full_frame() -> pd.DataFrame:
-    """A valid recording carrying every numeric SPEC §3 column, values well inside range."""
+    """A valid recording carrying every numeric recording column, values well inside range."""
     t = np.arange(N) * 0.2
     return pd.DataFrame({
         "t_s": t, "power_W": 40.0 + t, "voltage_V": 24.0, "current_A": (40.0 + t) / 24.0,
@@ -33,7 +33,7 @@ def full_frame() -> pd.DataFrame:
     })
 
 
-# one clearly non-physical value per column (each beyond the range the README states)
+# one clearly non-physical value per column (each beyond the range docs/guide/recordings.md states)
 BEYOND = {
     "power_W": 1e308, "voltage_V": 2500.0, "current_A": -2e4, "v_mps": 200.0,
     "accel_mps2": -2e4, "yaw_rate_radps": 150.0, "x_m": 2e8, "y_m": -2e8, "z_m": -2e4,

@@ -1,4 +1,4 @@
-"""Scenario TOML loading (SPEC §2): values, defaults, the [model] table and every error."""
+"""Scenario TOML loading (docs/formats.md, scenario): values, defaults, the [model] table and every error."""
 
 from __future__ import annotations
 

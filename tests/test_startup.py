@@ -1,4 +1,4 @@
-"""Issue #13 item 6: start-up. Structural checks (no timings): the CLI and its command
+"""Start-up. Structural checks (no timings): the CLI and its command
 modules import no heavy library, and ``range`` needs neither scipy nor CasADi."""
 
 from __future__ import annotations

@@ -302,7 +302,7 @@ def test_an_unreachable_scheduler_is_exit_2(tmp_path):
 
 
 def test_bench_sweep_small_run_meets_its_own_bookkeeping(tmp_path):
-    """Structure only (the measured figures are the README's): both timings per repeat, and
+    """Structure only (the measured figures are docs/benchmarks/sweep.md's): both timings per repeat, and
     the kill-and-resume check ending with one row per run, none redone, no process left."""
     write_scenario(tmp_path, name="yard.toml")
     code, stdout, stderr = run_cli("bench", "sweep", tmp_path / "yard.toml", "--runs", "2",

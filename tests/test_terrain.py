@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import base_features, feature, write_scenario
 
+from orange_plan.context import load_context
 from orange_plan.errors import InputError, ScenarioError
 from orange_plan.scenario import load_scenario
 from orange_plan.world.terrain import World
@@ -20,7 +21,16 @@ def test_world_from_scenario(tmp_path):
                                   "environment.wind_from_deg": 90.0})
     assert w.home_xy_m == (2.0, 5.0)
     assert w.default_crr == 0.05 and w.default_surface_name == "default"  # robot.crr
-    np.testing.assert_allclose(w.wind_xy_mps, (-3.0, 0.0), atol=1e-12)
+
+
+def test_the_wind_is_held_by_the_conditions_not_the_world(tmp_path):
+    """One runtime holder of the wind: the context's conditions carry the scenario's wind
+    and the world carries none (a second copy could disagree with a measured wind)."""
+    path = write_scenario(tmp_path, set={"environment.wind_speed_mps": 3.0,
+                                         "environment.wind_from_deg": 90.0})
+    ctx = load_context(path)
+    np.testing.assert_allclose(ctx.conditions.wind_xy_mps, (-3.0, 0.0), atol=1e-12)
+    assert not hasattr(ctx.world, "wind_xy_mps")
 
 
 def test_default_surface_wins_over_robot_crr(tmp_path):

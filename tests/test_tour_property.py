@@ -10,7 +10,7 @@ rule) are planned with a small roadmap. Why the invariants are stated this way:
   reserve. That is the promise of the homing constraint ("the robot can turn home from
   anywhere on the tour"); it does not rest on the tour planner's own bookkeeping.
 - The cumulative energies are re-evaluated with ``path_energy`` on the written vertices and
-  speeds (SPEC §7): they must agree within 1 %, so a plan's figures are those of the walk it
+  speeds (the energy model): they must agree within 1 %, so a plan's figures are those of the walk it
   describes, not of the search's estimates.
 """
 

@@ -1,4 +1,4 @@
-"""Meteorological wind <-> vector (SPEC §7), shared by scenario, truth, recordings, simulator."""
+"""Meteorological wind <-> vector (docs/guide/range.md), shared by scenario, truth, recordings, simulator."""
 
 from __future__ import annotations
 

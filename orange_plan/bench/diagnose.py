@@ -18,9 +18,9 @@ parameter (ours), and the seconds each method took (the recording's generation e
 
 How much of each concealed term the recording holds (``oracle``): diagnosis's own fit and
 test, *told* the true terms (and a payload's true change time), each term judged against the
-others. A term whose oracle t is under ``MIN_T``, or whose oracle held-out gain is under
-``MIN_GAIN``, could not have been named at diagnosis's significance by any choice of terms:
-the noise of that recording hides it. The summary counts misses among the detectable terms
+others. A term whose oracle t is under ``DiagnosisSettings.min_t``, or whose oracle held-out
+gain is under ``DiagnosisSettings.min_gain``, could not have been named at diagnosis's
+significance by any choice of terms: the noise of that recording hides it. The summary counts misses among the detectable terms
 apart, so that a selection failure and an effect the data do not carry are told apart.
 
 Each oracle entry also sets the term's true size (its RMS power in that fit, ``effect_W``)
@@ -37,9 +37,6 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from orange_plan.identify.diagnose import (
-    MIN_GAIN,
-    MIN_T,
-    N_FOLDS,
     build_design,
     candidate_columns,
     candidates,
@@ -149,12 +146,13 @@ def oracle(result, truth: dict) -> list[dict]:
         return out
     full = fit_design(d, told)
     for cand in told:
-        # diagnosis's own judgement of the term added last; its t against MIN_T (a true
+        # diagnosis's own judgement of the term added last; its t against min_t (a true
         # change time needs no scan's raised bar)
         trial = judge(d, [cand], full, fit_design(d, [c for c in told if c is not cand]))
         out.append({"term": spec_id(cand.id), "t": trial.t_max, "gain_pct": 100.0 * trial.gain,
                     "effect_W": full.effect_rms_W(cand.id),
-                    "detectable": bool(trial.t_max >= MIN_T and trial.gain >= MIN_GAIN)})
+                    "detectable": bool(trial.t_max >= d.settings.min_t
+                                          and trial.gain >= d.settings.min_gain)})
     return out
 
 
@@ -212,7 +210,7 @@ def sparse_regression(case) -> tuple[list[str], float]:
     held = np.zeros(d.n)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        for f in range(N_FOLDS):
+        for f in range(d.settings.n_folds):
             train = d.fold != f
             model = LassoCV(cv=5, alphas=100, fit_intercept=False, max_iter=5000).fit(
                 xs[train], d.y[train])

@@ -58,17 +58,6 @@ FIT_EVERY = 3
 METHODS = ("recording", "route", "per_metre", "power_time")
 
 
-class _SurveyMission(Mission):
-    """A mission whose waypoints may lie below home: the WADL colonies lie 120-190 m below the
-    take-off ridge. The map has no elevation, so the check runs in the flight's own frame
-    (``in_map_frame=False``) and nothing tests the waypoints against terrain."""
-
-    def __post_init__(self):
-        object.__setattr__(self, "waypoints", tuple(self.waypoints))
-        if len(self.waypoints) < 2:
-            raise InputError(f"{self.source}: a mission needs home and at least one waypoint")
-
-
 @dataclass(frozen=True)
 class Flight:
     """One WADL flight: its recording, its planned mission and what its metadata says."""
@@ -101,8 +90,9 @@ def wadl_mission(path: Path, meta: dict) -> Mission:
                                     corner_radius_m=number(w.corner_radius_m) if curved
                                     else None)
                     for w in route.itertuples()]
-    return _SurveyMission(tuple(wps), takeoff_alt_m=None, returns_home=False,
-                          source=Path(path).name)
+    # the colonies lie 120-190 m below the take-off ridge and the map has no elevation: the
+    # check runs in the flight's own frame (``in_map_frame=False``), the terrain unknown
+    return Mission(tuple(wps), takeoff_alt_m=None, returns_home=False, source=Path(path).name)
 
 
 def flight_paths(folder: Path, limit: int | None = None) -> list[Path]:

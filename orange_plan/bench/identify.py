@@ -212,7 +212,7 @@ CALIBRATION_CASES = {
 torque, so the model is the idle draw plus Coulomb rolling and skid-steer scrub torques
 (``rolling_torque``, ``turning_torque``), the scrub fed by the wheels' yaw rate (it follows
 the wheels, BorealTC importer notes); chosen by 2-fold cross-validation inside each fitting
-half (README). BMW: the scenario's model (rolling, drag, grade, inertia, regen, the measured
+half (docs/benchmarks/calibration.md). BMW: the scenario's model (rolling, drag, grade, inertia, regen, the measured
 cabin HVAC power and the cold-start ``drift``), the HVAC share held at its physical value 1
 (the compressor is on the traction battery's bus; standstill power confirms ~1.1): amid
 kilowatts of traction noise the fit cannot pin it (0.1-0.8 between halves)."""

@@ -284,8 +284,7 @@ def oracle_context(ctx, truth):
     if truth.wind is None:
         return oracle
     wind = truth.wind.mean_xy_mps
-    return replace(oracle, world=replace(ctx.world, wind_xy_mps=wind),
-                   conditions=oracle.conditions.with_wind(wind))
+    return replace(oracle, conditions=oracle.conditions.with_wind(wind))
 
 
 # --- flights ------------------------------------------------------------------------------

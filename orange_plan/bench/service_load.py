@@ -333,7 +333,7 @@ def run_service_bench(*, seconds: float = 20.0, repeats: int = 3, robots: int = 
 
 
 def service_table(r: ServiceBenchResult):
-    """The README table: measured, target, ratio (<= 1: met)."""
+    """The benchmark table (docs/benchmarks/service.md): measured, target, ratio (<= 1: met)."""
     from rich.table import Table
 
     ratios = r.ratios()

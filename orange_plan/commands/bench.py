@@ -55,7 +55,7 @@ def bench_reach_cmd(
 
 
 def bench_table(r) -> Table:
-    """The README table: measured value, target, and a ratio that is <= 1 when the target is
+    """The benchmark table (docs/benchmarks/): measured value, target, and a ratio that is <= 1 when the target is
     met (measured/target for upper limits, target/measured for lower limits; worst pair for the
     grid comparison)."""
     t = Table(title=f"bench reach: {r.scenario} (median of {r.repeats})", header_style="bold")

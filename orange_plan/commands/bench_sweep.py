@@ -62,7 +62,7 @@ def bench_sweep_cmd(
 
 
 def sweep_bench_table(result: dict) -> Table:
-    """Measured against the targets (the README table)."""
+    """Measured against the targets (the table of docs/benchmarks/sweep.md)."""
     s = result["speedup"]
     t = Table(title=f"bench sweep: {s['runs']} runs of {s['scenario']} ({s['vertices']} "
               f"vertices), median of {s['repeats']}; load {s['load_1min'][0]:.1f}..."

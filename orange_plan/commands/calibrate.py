@@ -26,7 +26,7 @@ ScenarioOpt = Annotated[Path, typer.Option("--scenario", help=SCENARIO_HELP)]
 OutOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", help="Write the scenario with the fitted values here (TOML).")]
 TermsOpt = Annotated[str | None, typer.Option(
-    "--terms", help="Comma-separated physics term ids to fit (see the README's term table), "
+    "--terms", help="Comma-separated physics term ids to fit (see the term table of docs/guide/range.md), "
                     "e.g. ancillary,sensor_rate,rolling,surface_rolling; default: the "
                     "scenario's model.")]
 FixedOpt = Annotated[str | None, typer.Option(

@@ -63,7 +63,7 @@ def paper_cmd(
 
 
 def _headline(summary: dict) -> Table:
-    """The numbers the README quotes: ours beside the paper's."""
+    """The headline numbers: ours beside the paper's."""
     sec = summary["sections"]
     table = Table(title=f"ORangE paper, regenerated ({summary['trials']} trials)",
                   header_style="bold")

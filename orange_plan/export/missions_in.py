@@ -6,7 +6,7 @@ goes (latitude/longitude/altitude items, or map-frame rows), at what speed, how 
 at each point, how it turns, and whether it comes home at the end. ``check`` needs that as
 waypoints in the map's frame (x east, y north, z above home [m]) with those attributes, or a
 one-line refusal naming the item when the file cannot be flown as read (an unknown command, no
-home, a coordinate that is not a number, an altitude below home).
+home, a coordinate that is not a number, an altitude below the terrain it is measured from).
 
 How it is solved: latitude/longitude go through the map's ``origin`` with the exact
 conversion of ``export.autopilot`` (``latlon_to_xy``); with no origin, a local frame at the
@@ -22,9 +22,13 @@ mission's home (its first point) stands in. MAVLink items are read in order:
 * the commands in ``PASSIVE_COMMANDS`` (camera, gimbal, servo, heading) do not move the
   robot and are skipped; any other command is refused: the check cannot say what it does.
 
-Altitudes: a relative-altitude frame (3, 6) is above home; a global frame (0, 5) is above mean
-sea level and becomes above-home with the home's altitude. Terrain frames (10, 11) are refused
-(the altitude above home would depend on a terrain model the check does not have).
+Altitudes (the MAVLink frames of the QGroundControl plan format): a relative-altitude frame
+(3, 6: ``MAV_FRAME_GLOBAL_RELATIVE_ALT``) is above home; a global frame (0, 5:
+``MAV_FRAME_GLOBAL``) is above mean sea level and becomes above-home with the home's altitude;
+a terrain frame (10, 11: ``MAV_FRAME_GLOBAL_TERRAIN_ALT``) is above the ground at the
+waypoint, kept as such (``MissionWaypoint.above_terrain``) until ``Mission.above_home`` places
+it on a terrain. A waypoint may lie below home (a survey of a valley flown from a ridge);
+whether it is above the ground there is for the terrain to say (``planning.mission_check``).
 """
 
 from __future__ import annotations
@@ -62,6 +66,8 @@ RELATIVE_FRAMES = {3, 6}
 """MAV_FRAME_GLOBAL_RELATIVE_ALT(_INT): altitude above home."""
 GLOBAL_FRAMES = {0, 5}
 """MAV_FRAME_GLOBAL(_INT): altitude above mean sea level."""
+TERRAIN_FRAMES = {10, 11}
+"""MAV_FRAME_GLOBAL_TERRAIN_ALT(_INT): altitude above the ground at the waypoint."""
 DEFAULT_ACCEPTANCE_RADIUS_M = 2.0
 """Acceptance radius of a waypoint whose param2 is 0 (the autopilot's own default: ArduPilot's
 WPNAV_RADIUS; PX4 sets NAV_ACC_RAD) [m]: the turn there starts this far before the waypoint."""
@@ -84,7 +90,8 @@ class MissionWaypoint:
     Attributes
     ----------
     x_m, y_m : position (x east, y north) [m]
-    z_m : altitude above home [m] (aerial robots; ground and marine robots follow the terrain)
+    z_m : altitude above home (negative: below home), or above the ground there when
+        ``above_terrain`` [m] (aerial robots; ground and marine robots follow the terrain)
     speed_mps : commanded speed of the leg LEAVING this waypoint [m/s]; None: the robot's
         default for the leg's kind (cruise, climb, descent)
     stay_s : hold (hover) time at the waypoint [s]
@@ -92,6 +99,8 @@ class MissionWaypoint:
         without corner radius); r >= 0 turns on the arc tangent to both legs that starts r
         before the waypoint, at the speed a lateral acceleration of ``accel_max`` allows on it;
         inf passes the waypoint without slowing (a plan's tour vertex, as the plan models it)
+    above_terrain : ``z_m`` is above the ground at the waypoint (a terrain-frame item), not
+        above home
     """
 
     x_m: float
@@ -100,6 +109,7 @@ class MissionWaypoint:
     speed_mps: float | None = None
     stay_s: float = 0.0
     corner_radius_m: float | None = None
+    above_terrain: bool = False
 
 
 @dataclass(frozen=True)
@@ -118,8 +128,9 @@ class Mission:
     Raises
     ------
     InputError
-        Fewer than two waypoints, a non-finite value, an altitude below home, a speed <= 0, a
-        negative hold time or corner radius (naming the waypoint).
+        Fewer than two waypoints, a non-finite value, an altitude below the terrain it is
+        measured from, a speed <= 0, a negative hold time or corner radius (naming the
+        waypoint).
     """
 
     waypoints: tuple[MissionWaypoint, ...]
@@ -146,9 +157,22 @@ class Mission:
         passed = [replace(w, corner_radius_m=math.inf) for w in wps[:-1]]
         return replace(self, waypoints=(*passed, wps[-1]))
 
+    def above_home(self, ground_m) -> Mission:
+        """The same mission with every altitude above home: a terrain-relative one plus
+        ``ground_m(x, y)``, the ground's height above home there [m] (arrays in and out)."""
+        on_terrain = [i for i, w in enumerate(self.waypoints) if w.above_terrain]
+        if not on_terrain:
+            return self
+        wps = list(self.waypoints)
+        x = np.array([wps[i].x_m for i in on_terrain], float)
+        y = np.array([wps[i].y_m for i in on_terrain], float)
+        for i, g in zip(on_terrain, np.atleast_1d(ground_m(x, y))):
+            wps[i] = replace(wps[i], z_m=wps[i].z_m + float(g), above_terrain=False)
+        return replace(self, waypoints=tuple(wps))
+
     @property
     def xyz_m(self) -> np.ndarray:
-        """Waypoint positions, shape (n, 3) [m]."""
+        """Waypoint positions, shape (n, 3) [m] (z as given: see ``above_home``)."""
         return np.array([(w.x_m, w.y_m, w.z_m) for w in self.waypoints], float)
 
 
@@ -157,8 +181,8 @@ def _check_waypoint(wp: MissionWaypoint, where: str) -> None:
         value = getattr(wp, name)
         if not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise InputError(f"{where}: {name} = {value!r} is not a finite number")
-    if wp.z_m < 0:
-        raise InputError(f"{where}: altitude {wp.z_m:g} m is below home (the ground)")
+    if wp.above_terrain and wp.z_m < 0:
+        raise InputError(f"{where}: altitude {wp.z_m:g} m above the terrain is below the ground")
     if wp.stay_s < 0:
         raise InputError(f"{where}: hold time {wp.stay_s:g} s must be >= 0")
     if wp.speed_mps is not None and not (math.isfinite(wp.speed_mps)
@@ -310,15 +334,15 @@ def mission_from_items(home, items, origin, source: str,
             if it.params[1] > 0:
                 speed = it.params[1]
                 points[-1] = replace(points[-1], speed_mps=speed)
-        elif it.command == NAV_TAKEOFF:
-            takeoff = _altitude(it, home_alt, where)
+        elif it.command == NAV_TAKEOFF:  # at home: above the terrain there is above home
+            takeoff, _ = _altitude(it, home_alt, where)
         elif it.command in (NAV_WAYPOINT, NAV_LOITER_TIME):
-            (x, y), z = placed[k], _altitude(it, home_alt, where)
+            (x, y), (z, on_terrain) = placed[k], _altitude(it, home_alt, where)
             hold = it.params[0] if np.isfinite(it.params[0]) else 0.0
             radius = it.params[1] if it.command == NAV_WAYPOINT else 0.0
             radius = radius if np.isfinite(radius) and radius > 0 else acceptance_radius_m
             points[-1] = replace(points[-1], speed_mps=speed)
-            points.append(MissionWaypoint(x, y, z, speed, max(hold, 0.0), radius))
+            points.append(MissionWaypoint(x, y, z, speed, max(hold, 0.0), radius, on_terrain))
         elif it.command == NAV_RETURN_TO_LAUNCH:
             returns = landed = True
         elif it.command == NAV_LAND:
@@ -326,7 +350,8 @@ def mission_from_items(home, items, origin, source: str,
                     it.params[4], it.params[5]) != (0.0, 0.0):
                 x, y = placed[k]
                 last = points[-1]
-                points.append(MissionWaypoint(x, y, last.z_m, speed, 0.0, None))
+                points.append(MissionWaypoint(x, y, last.z_m, speed, 0.0, None,
+                                              last.above_terrain))
             landed = True
         elif it.command not in PASSIVE_COMMANDS:
             raise InputError(f"{where}: unknown or unsupported MAV_CMD {it.command} (check reads "
@@ -339,20 +364,22 @@ def mission_from_items(home, items, origin, source: str,
     return Mission(tuple(points), takeoff, returns or at_home, source)
 
 
-def _altitude(it: MissionItem, home_alt: float, where: str) -> float:
+def _altitude(it: MissionItem, home_alt: float, where: str) -> tuple[float, bool]:
+    """(altitude [m], whether it is above the terrain rather than above home) of an item."""
     alt = it.params[6]
     if not math.isfinite(alt):
         raise InputError(f"{where}: altitude is not a number")
     if it.frame in RELATIVE_FRAMES:
-        z = alt
-    elif it.frame in GLOBAL_FRAMES:
-        z = alt - home_alt
-    else:
-        raise InputError(f"{where}: frame {it.frame} is not supported (use altitudes relative "
-                         "to home, frame 3, or above mean sea level, frame 0)")
-    if z < 0:
-        raise InputError(f"{where}: altitude {z:g} m above home is below the ground at home")
-    return float(z)
+        return float(alt), False
+    if it.frame in GLOBAL_FRAMES:
+        return float(alt - home_alt), False
+    if it.frame in TERRAIN_FRAMES:
+        if alt < 0:
+            raise InputError(f"{where}: altitude {alt:g} m above the terrain is below the "
+                             "ground")
+        return float(alt), True
+    raise InputError(f"{where}: frame {it.frame} is not supported (use altitudes above home, "
+                     "frame 3, above mean sea level, frame 0, or above the terrain, frame 10)")
 
 
 def _placed(items, origin, source: str) -> dict[int, tuple[float, float]]:

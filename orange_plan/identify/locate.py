@@ -1,10 +1,10 @@
 """Locating where a recording and a model disagree: in time, in operating conditions, in space.
 
-``identify.diagnose`` hands in its design (the recording against the refitted baseline) and
+``identify.diagnosis`` hands in its design (the recording against the refitted baseline) and
 the baseline's residual (recorded minus predicted battery power); this module says where the
 residual departs from zero, in words a person can check against the recording. ``d`` in the
-functions below is that design (``identify.diagnose.Design``: samples, state, time, frame,
-world, recorded power); it is not imported here, which would import diagnosis back.
+functions below is that design (``identify.diagnosis.design.Design``: samples, state, time,
+frame, world, recorded power); it is not imported here, which would import diagnosis back.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Mismatch:
-    """A time window where the baseline's residual departs from zero (SPEC §6).
+    """A time window where the baseline's residual departs from zero (docs/guide/diagnosis.md).
 
     Attributes
     ----------
@@ -150,7 +150,7 @@ CONDITIONS: dict[str, tuple[Callable, str, str]] = {
     "sensor_rate_Hz": (lambda d: d.frame["sensor_rate_Hz"].to_numpy(float), "sensor rate", "Hz"),
     "time": (lambda d: d.t_s, "time since start", "s"),
 }
-"""Operating conditions the residual is examined against (SPEC §3 columns when present)."""
+"""Operating conditions the residual is examined against (the recording's optional columns when present; docs/formats.md)."""
 
 
 def condition_values(d) -> dict[str, np.ndarray]:

@@ -31,7 +31,7 @@ replaced by live data (the paper's online ORangE). Here:
    Its uncertainty adds, in quadrature, the coefficient part ``sqrt(G' P G) / d_w`` and the
    variability of the conditions: the std of ``e`` over ``WINDOW_PARTS`` sub-windows divided
    by sqrt(WINDOW_PARTS) (gusts, terrain and stops make the energy per metre wander; the
-   coefficient part alone is far too narrow, see the README).
+   coefficient part alone is far too narrow: it holds the conditions fixed).
 4. Remaining range ``E_remaining / e`` with ``sd = E_remaining sd(e) / e^2``; never
    negative; infinite when ``e <= 0`` (nothing consumed per metre, e.g. downhill).
 """

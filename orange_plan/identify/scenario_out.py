@@ -1,6 +1,6 @@
 """Write a fitted model back into a scenario TOML (``calibrate -o``), and read it physically.
 
-Rule (documented in the README): the fitted lumped coefficients are written into the
+Rule (documented in docs/guide/recordings.md): the fitted lumped coefficients are written into the
 ``[model]`` table (``name = value`` plus ``stderr = {name = value}``), which the scenario
 loader applies verbatim, so the written scenario rebuilds exactly the fitted coefficients and
 their standard errors (correlations are not stored). Where a lumped coefficient maps to one

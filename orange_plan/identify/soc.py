@@ -3,7 +3,8 @@
 A scenario states the usable energy ``E_avail`` of the battery it expects (Eq. 3: rated
 capacity after decay with cycles and age). A battery that has aged more than the scenario
 says holds less, and energy measured as ``sum P dt`` cannot show it: only the battery's own
-state of charge (the recording's optional ``soc``, SPEC §3, 0..1 of the usable energy) does.
+state of charge (the recording's optional ``soc``, 0..1 of the usable energy; see
+docs/formats.md) does.
 
 Model: ``soc_k = a - E_k / C`` with ``E_k`` the energy drawn by sample ``k`` (measured,
 ``sum P dt``, counted from the same origin as the scenario's ``E_avail``) and ``C`` the usable

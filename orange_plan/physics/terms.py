@@ -55,7 +55,7 @@ class Term:
         [1/W per coefficient unit] (module docstring)
     coefficients : names of the coefficients (unit suffixed)
     feature : ``feature(state) -> tuple`` of one feature per coefficient
-    description : one line for the README and reports
+    description : one line for the documentation and reports
     channels : the ``MotionState.channels`` the feature reads (beyond the motion fields)
     shape : a ``drift``'s ``(shape, tau_s, from_s)`` (``drift_term``); () for every other term
     """
@@ -194,7 +194,8 @@ def turning_torque_feature(state: MotionState):
 DRIFT_TAU_S = 1200.0
 """Time constant of the warm-up drift [s]: a cold drivetrain (gear oil, bearings), cold tyres
 and the cabin pull-down settle over tens of minutes. Not fitted (it would make the term
-non-linear): chosen by leave-one-run-out cross-validation on fitting trips only (README)."""
+non-linear): chosen by leave-one-run-out cross-validation on fitting trips only
+(docs/benchmarks/calibration.md)."""
 
 
 HVAC_W = Channel("hvac_W", 0.0, np.inf, "cabin heating / air-conditioning electrical power, "
@@ -219,7 +220,7 @@ def heater_feature(state: MotionState):
 
     Coefficient ``heater_fraction`` [-]: the mean share of the request the high-voltage heater
     actually draws. The heater cycles and stops once the coolant is warm, so the share is well
-    below 1 and only calibration can tell it (BMW i3 trips: 0.28 +- 0.04; README).
+    below 1 and only calibration can tell it (BMW i3 trips: 0.28 +- 0.04; docs/benchmarks/calibration.md).
     """
     return (_per_sample(state.channel(HEATER_REQUEST_W.name), state),)
 

@@ -17,31 +17,17 @@ to which the margin is still >= 0.
 
 How it is solved:
 
-1. Stages: [take-off: a vertical climb at home], one leg per pair of waypoints (a 3-D straight
-   line; aerial robots fly the waypoints' altitudes, ground and marine robots the map's
-   terrain, which gives their grade), [the way home], [landing: a vertical descent]. A leg
-   without a speed takes the robot's default for its kind: cruise (``Context.cruise_speed_mps``)
-   for a leg that moves sideways, ``robot.climb_mps`` / ``robot.descent_mps`` for a vertical
-   one, ``robot.landing_mps`` (default: the descent speed) for the final landing (an
-   autopilot's automatic landing descends slower than its mission legs: about 1 m/s against
-   up to 4 m/s on a DJI Matrice 100); every leg's speed is capped so that its vertical rate
-   stays within those speeds and its speed within ``robot.v_max_mps``.
-2. Motion: the robot stops at a hold, before and after a vertical stage, at the end, and at a
-   waypoint without corner radius ("normal" missions). Between stops it drives the
-   profile of ``physics.profile.Driver`` (the planner's and the simulator's): acceleration and
-   braking at ``accel_max_mps2``, duty-cycle stops, at rest at both ends. At a waypoint with
-   corner radius r it turns on the arc tangent to both legs that starts r before it; that
-   arc has radius ``R = r / tan(theta / 2)`` for a heading change theta, and the robot slows to
-   ``v = sqrt(accel_max R)`` (lateral acceleration at most ``accel_max``) by then, braking at
-   ``accel_max``. The arc's length replaces the polyline's ``2 r`` around the waypoint
-   (``_round_corners``: 21 % shorter at 90 degrees; a survey of 40 m legs on 20 m radii is
-   mostly arcs).
-3. Energy: the scenario's energy model (``EnergyModel.power_W``) on the motion samples
-   (speed, acceleration, grade, heading, wind, yaw rate), a hold being samples at rest, so any
-   term the model has (a calibrated one included) counts; the variance is the model's
-   predictive variance (``predictive_variance_J2``) of the gradient summed over the samples.
+1. Stages (``planning.mission_stages``): [take-off], one 3-D straight leg per pair of
+   waypoints, [the way home], [landing], each at its commanded or default speed within the
+   robot's limits, and the speed allowed through each corner.
+2. Motion (``planning.mission_motion``): the profile of ``physics.profile.Driver`` between
+   stops, slowing for each corner's arc.
+3. Energy: the scenario's energy model on the motion samples, a hold being samples at rest;
+   the variance is the model's predictive variance (``predictive_variance_J2``) of the
+   gradient summed over the samples.
 4. The point of no return is found on the margin taken as linear in the distance flown
    between consecutive leg ends.
+
 
 Why the verdict is safe: every leg's energy is that of the motion the robot must fly (stops,
 ramps, corner slow-downs, holds, climbs), never the cruise figure; the way home from every
@@ -53,45 +39,33 @@ is reported with every figure.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from orange_plan.errors import InputError, OrangeError
+from orange_plan.errors import InputError
 from orange_plan.export.missions_in import Mission, MissionWaypoint
 from orange_plan.limits import (
     MAX_MISSION_HOME_SAMPLES,
     MAX_MISSION_SAMPLES,
     MAX_MISSION_WAYPOINTS,
 )
-from orange_plan.physics.pathcost import Steps, max_step_m, subdivide
-from orange_plan.physics.profile import (
-    CREEP_FRACTION,
-    SAMPLE_DT_S,
-    STOP_EVERY_S,
-    TURN_SPREAD_S,
-    Driver,
-    drive_state,
-    spread_yaw_rate,
+from orange_plan.physics.pathcost import max_step_m
+from orange_plan.physics.profile import SAMPLE_DT_S
+from orange_plan.planning.mission_motion import FlatWorld, Samples, drive, energy_totals
+from orange_plan.planning.mission_stages import (
+    Stage,
+    mission_stages,
+    robot_limits,
+    way_home,
+    with_corners,
 )
-from orange_plan.physics.state import MotionState
 from orange_plan.planning.reserve import reserve_from
 from orange_plan.world.positions import check_on_map
 
 __all__ = ["LegCheck", "Mission", "MissionCheck", "MissionWaypoint", "check_mission",
            "mission_samples"]
 
-DEFAULT_CLIMB_MPS = 2.5
-"""Default vertical climb speed of an aerial robot without ``robot.climb_mps`` [m/s]
-(ArduPilot's WPNAV_SPEED_UP default)."""
-DEFAULT_DESCENT_MPS = 1.5
-"""Default vertical descent speed of an aerial robot without ``robot.descent_mps`` [m/s]
-(ArduPilot's WPNAV_SPEED_DN default)."""
-AT_HOME_M = 1e-3
-"""A point this close to home (horizontally) is home: no way home to fly from it [m] (a
-waypoint read from latitude/longitude lands within round-off of it)."""
-VERTICAL_EPS_M = 1e-6
-"""A stage whose horizontal length is below this is vertical [m]."""
 VERDICTS = ("fits", "fits_without_reserve", "does_not_fit")
 HOME_BATCH_SAMPLES = 500_000
 """Samples of ways home driven at once (bounds the memory of a long mission's check)."""
@@ -207,362 +181,6 @@ class MissionCheck:
         }
 
 
-# --- stages -----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Stage:
-    """A straight piece of the flight: start and end (x, y, z) [m], cruise speed [m/s], hold
-    time at the end [s] and the speed allowed through the end (0: a stop) with the distance
-    before and after the end over which it holds (the corner's arc) [m]."""
-
-    kind: str
-    from_wp: int
-    to_wp: int
-    start: tuple
-    end: tuple
-    speed: float
-    hold_s: float = 0.0
-    hold_start_s: float = 0.0
-    corner_mps: float = 0.0
-    corner_r_m: float = 0.0
-
-    @property
-    def delta(self) -> np.ndarray:
-        return np.subtract(self.end, self.start)
-
-    @property
-    def horiz_m(self) -> float:
-        return float(np.hypot(*self.delta[:2]))
-
-    @property
-    def vertical(self) -> bool:
-        return self.horiz_m < VERTICAL_EPS_M
-
-    @property
-    def length_m(self) -> float:
-        return float(np.linalg.norm(self.delta))
-
-
-@dataclass(frozen=True)
-class _Robot:
-    """What the stages need from the scenario."""
-
-    aerial: bool
-    cruise_mps: float
-    climb_mps: float
-    descent_mps: float
-    v_max_mps: float
-    accel_mps2: float
-    landing_mps: float
-
-
-def _robot(ctx) -> _Robot:
-    r = ctx.scenario.robot
-    climb = getattr(r, "climb_mps", None) or min(DEFAULT_CLIMB_MPS, r.v_max_mps)
-    descent = getattr(r, "descent_mps", None) or min(DEFAULT_DESCENT_MPS, r.v_max_mps)
-    landing = getattr(r, "landing_mps", None) or descent
-    return _Robot(r.kind == "aerial", min(ctx.cruise_speed_mps, r.v_max_mps), climb, descent,
-                  r.v_max_mps, r.accel_max_mps2, landing)
-
-
-def _leg_speed(robot: _Robot, wanted, start, end) -> float:
-    """Commanded speed of a straight stage, capped by v_max and the vertical speeds [m/s]."""
-    d = np.subtract(end, start)
-    length, rise = float(np.linalg.norm(d)), float(d[2])
-    vertical = float(np.hypot(*d[:2])) < VERTICAL_EPS_M
-    if wanted is None:
-        wanted = (robot.climb_mps if rise > 0 else robot.descent_mps) if vertical \
-            else robot.cruise_mps
-    speed = min(float(wanted), robot.v_max_mps)
-    if length > 0 and rise != 0:
-        limit = robot.climb_mps if rise > 0 else robot.descent_mps
-        speed = min(speed, limit * length / abs(rise))
-    return speed
-
-
-def _stages(mission: Mission, robot: _Robot) -> list[_Stage]:
-    """The flight as stages, corners not yet set (module docstring, step 1)."""
-    wps = mission.waypoints
-    z = [w.z_m if robot.aerial else 0.0 for w in wps]
-    home = (wps[0].x_m, wps[0].y_m)
-    takeoff = (mission.takeoff_alt_m if mission.takeoff_alt_m is not None else z[0]) \
-        if robot.aerial else 0.0
-    stages = []
-    here = (*home, takeoff)
-    waiting_s = wps[0].stay_s  # a hold at home before anything flies
-    if takeoff > 0:
-        stages.append(_Stage("takeoff", 0, 0, (*home, 0.0), here,
-                             _leg_speed(robot, None, (*home, 0.0), here), waiting_s))
-        waiting_s = 0.0
-    for i in range(len(wps) - 1):
-        end = (wps[i + 1].x_m, wps[i + 1].y_m, z[i + 1])
-        if np.linalg.norm(np.subtract(end, here)) == 0:  # a repeated waypoint: only its hold
-            if stages:
-                stages[-1] = replace(stages[-1], hold_s=stages[-1].hold_s + wps[i + 1].stay_s)
-            else:
-                waiting_s += wps[i + 1].stay_s
-            continue
-        stages.append(_Stage("leg", i, i + 1, here, end,
-                             _leg_speed(robot, wps[i].speed_mps, here, end), wps[i + 1].stay_s,
-                             waiting_s))
-        waiting_s = 0.0
-        here = end
-    last = len(wps) - 1
-    if mission.returns_home and math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
-        end = (*home, here[2])
-        stages.append(_Stage("return", last, 0, here, end,
-                             _leg_speed(robot, wps[last].speed_mps, here, end)))
-        here = end
-    if robot.aerial and here[2] > 0:
-        end = (here[0], here[1], 0.0)
-        stages.append(_Stage("landing", stages[-1].to_wp if stages else 0,
-                             stages[-1].to_wp if stages else 0, here, end,
-                             _leg_speed(robot, robot.landing_mps, here, end)))
-    if not stages:
-        raise InputError(f"{mission.source}: every waypoint is home: nothing to fly")
-    return stages
-
-
-def _with_corners(stages: list[_Stage], mission: Mission, robot: _Robot) -> list[_Stage]:
-    """Set the speed allowed through each stage's end (module docstring, step 2)."""
-    out = []
-    for k, st in enumerate(stages):
-        nxt = stages[k + 1] if k + 1 < len(stages) else None
-        radius = mission.waypoints[st.to_wp].corner_radius_m if st.kind == "leg" else None
-        if nxt is None or st.hold_s > 0 or st.vertical or nxt.vertical or radius is None:
-            out.append(st)
-            continue
-        a, b = st.delta / st.length_m, nxt.delta / nxt.length_m
-        turn = math.acos(min(1.0, max(-1.0, float(a @ b))))
-        if radius == math.inf or turn < 1e-9:
-            speed = math.inf
-        else:
-            speed = math.sqrt(robot.accel_mps2 * radius / math.tan(turn / 2)) \
-                if turn < math.pi - 1e-9 else 0.0
-            if speed < CREEP_FRACTION * max(st.speed, nxt.speed):
-                speed = 0.0  # slower than the Driver's creep: a stop at the waypoint
-        out.append(replace(st, corner_mps=speed, corner_r_m=0.0 if radius == math.inf
-                           else radius))
-    return out
-
-
-def _runs(stages: list[_Stage]) -> list[list[int]]:
-    """Stage indices grouped into runs between stops (a stop: corner speed 0)."""
-    runs, current = [], []
-    for k, st in enumerate(stages):
-        if st.hold_start_s > 0 and current:
-            runs.append(current)
-            current = []
-        current.append(k)
-        if st.corner_mps <= 0:
-            runs.append(current)
-            current = []
-    if current:
-        runs.append(current)
-    return runs
-
-
-# --- motion and energy ------------------------------------------------------------------------
-
-
-class _FlatWorld:
-    """Terrain queries of a mission not placed on the map (no origin): flat, default ground."""
-
-    def __init__(self, world):
-        self.map = type("FlatMap", (), {"elevation": None})()
-        self.default_crr = world.default_crr
-
-    def elevation_at(self, x, y):
-        return np.zeros(np.broadcast(np.asarray(x), np.asarray(y)).shape)
-
-    def crr_at(self, x, y):
-        return np.full(np.broadcast(np.asarray(x), np.asarray(y)).shape, self.default_crr)
-
-    def surface_code_at(self, x, y):
-        return np.full(np.broadcast(np.asarray(x), np.asarray(y)).shape, -1)
-
-
-def _stages_steps(world, stages: list[_Stage], aerial: bool, step_m: float) -> Steps:
-    """Sub-steps of the stages in order, ``segment`` = stage index (``pathcost.Steps``): the
-    terrain's (``subdivide``) for ground robots, the stage's own climb spread evenly for
-    aerial ones, one sub-step for a vertical stage."""
-    start = np.array([st.start for st in stages], float)
-    end = np.array([st.end for st in stages], float)
-    vertical = np.array([st.vertical for st in stages])
-    flat = np.flatnonzero(~vertical)
-    parts = []
-    if flat.size:
-        steps = subdivide(world, start[flat, :2], end[flat, :2], step_m)
-        seg = flat[steps.segment]
-        if aerial:
-            horiz = np.hypot(*(end[flat, :2] - start[flat, :2]).T)[steps.segment]
-            dz = (end[seg, 2] - start[seg, 2]) * steps.horiz_m / horiz
-            steps = replace(steps, dz_m=dz, length_m=np.hypot(steps.horiz_m, dz))
-        parts.append(replace(steps, segment=seg))
-    up = np.flatnonzero(vertical)
-    if up.size:
-        x, y, rise = start[up, 0], start[up, 1], end[up, 2] - start[up, 2]
-        zero = np.zeros(up.size)
-        parts.append(Steps(segment=up, length_m=np.abs(rise), horiz_m=zero, dz_m=rise,
-                           dir_x=zero, dir_y=zero, crr=np.asarray(world.crr_at(x, y), float),
-                           surface_code=np.asarray(world.surface_code_at(x, y)),
-                           n_segments=up.size))
-    merged = Steps.concat(parts)
-    order = np.argsort(np.concatenate([p.segment for p in parts]), kind="stable")
-    fields = ("length_m", "horiz_m", "dz_m", "dir_x", "dir_y", "crr", "surface_code")
-    return Steps(segment=np.concatenate([p.segment for p in parts])[order],
-                 n_segments=len(stages), **{f: getattr(merged, f)[order] for f in fields})
-
-
-def _step_speeds(stages: list[_Stage], steps: Steps, robot: _Robot, dt: float) -> np.ndarray:
-    """Cruise speed per sub-step, capped around each corner (braking at ``accel_max`` to the
-    corner speed by the start of its arc, one sample of anticipation, held through the arc)."""
-    speed = np.array([st.speed for st in stages], float)[steps.segment]
-    edges = np.r_[0.0, np.cumsum(steps.length_m)]
-    stage_end = edges[np.searchsorted(steps.segment, np.arange(len(stages)), side="right")]
-    a = robot.accel_mps2
-    top = max(st.speed for st in stages)  # braking may have to start on an earlier stage
-    for k, st in enumerate(stages[:-1]):
-        v_c = st.corner_mps
-        if not (0 < v_c < max(st.speed, stages[k + 1].speed)):
-            continue
-        s_c, r = stage_end[k], st.corner_r_m
-        reach = r + (top**2 - v_c**2) / (2 * a) + a * dt * dt
-        lo = np.searchsorted(edges, s_c - reach - 1e-9, side="left")
-        hi = np.searchsorted(edges, s_c + r + 1e-9, side="right")
-        idx = np.arange(max(lo - 1, 0), min(hi, speed.size))
-        before = np.maximum(0.0, s_c - r - edges[idx + 1])
-        cap = np.maximum(v_c, np.sqrt(v_c**2 + 2 * a * before) - a * dt)
-        cap = np.where(edges[idx] >= s_c, np.where(edges[idx] < s_c + r, v_c, np.inf), cap)
-        speed[idx] = np.minimum(speed[idx], cap)
-    return speed
-
-
-def _round_corners(stages: list[_Stage], steps: Steps) -> Steps:
-    """Steps with each corner's polyline replaced by the length of its arc.
-
-    The arc is tangent to both legs at ``t = min(r, half of each leg)`` before and after the
-    waypoint; for a heading change theta its radius is ``t / tan(theta / 2)`` and its length
-    ``t theta / tan(theta / 2)``, shorter than the polyline's ``2 t`` (by 21 % at 90 degrees).
-    The sub-steps within ``t`` of the waypoint shrink by that ratio (their grade kept), so a
-    survey of short legs turning on 20 m radii is flown in the time the arcs take.
-    """
-    edges = np.r_[0.0, np.cumsum(steps.length_m)]
-    mid = 0.5 * (edges[:-1] + edges[1:])
-    stage_end = edges[np.r_[np.flatnonzero(np.diff(steps.segment)) + 1, steps.segment.size]]
-    scale = np.ones(steps.length_m.size)
-    for k, st in enumerate(stages[:-1]):
-        nxt = stages[k + 1]
-        if st.corner_r_m <= 0 or st.corner_mps <= 0:
-            continue
-        a, b = st.delta / st.length_m, nxt.delta / nxt.length_m
-        turn = math.acos(min(1.0, max(-1.0, float(a @ b))))
-        if turn < 1e-6:
-            continue
-        t = min(st.corner_r_m, 0.5 * st.length_m, 0.5 * nxt.length_m)
-        ratio = turn / (2.0 * math.tan(turn / 2))
-        scale[np.abs(mid - stage_end[k]) < t] = ratio
-    if np.all(scale == 1.0):
-        return steps
-    return replace(steps, length_m=steps.length_m * scale, horiz_m=steps.horiz_m * scale,
-                   dz_m=steps.dz_m * scale)
-
-
-@dataclass(frozen=True)
-class _Samples:
-    """Motion samples of many stages: their MotionState, the time each stands for [s] and the
-    label (stage or return index) each is charged to."""
-
-    state: MotionState
-    weight_s: np.ndarray
-    label: np.ndarray
-
-
-def _drive(groups, world, robot: _Robot, conditions, step_m: float,
-           dt: float = SAMPLE_DT_S) -> _Samples:
-    """Samples of ``groups``, pairs (label, stages): each group's stages flown in order, one
-    ``Driver`` run between stops, a hold as one sample at rest. A group's samples are charged
-    to its label, or (label None) each to its own stage's index."""
-    stages = [st for _, group in groups for st in group]
-    labels = np.concatenate([np.arange(len(group)) if label is None
-                             else np.full(len(group), label) for label, group in groups])
-    first = np.cumsum([0] + [len(group) for _, group in groups])
-    runs = [[int(first[g] + k) for k in run]
-            for g, (_, group) in enumerate(groups) for run in _runs(list(group))]
-    steps = _round_corners(stages, _stages_steps(world, stages, robot.aerial, step_m))
-    speeds = _step_speeds(stages, steps, robot, dt)
-    bounds = np.searchsorted(steps.segment, np.arange(len(stages) + 1), side="left")
-    k_spread = max(1, round(TURN_SPREAD_S / dt))
-    heading_all = np.arctan2(steps.dir_y, steps.dir_x)
-    kins = []
-    for run in runs:
-        lo, hi = bounds[run[0]], bounds[run[-1] + 1]
-        edges = np.r_[0.0, np.cumsum(steps.length_m[lo:hi])]
-        kin = _drive_run(edges, speeds[lo:hi], robot.accel_mps2, dt, conditions.duty_cycle)
-        j = kin["step"] + lo
-        heading = heading_all[j]
-        yaw, _ = spread_yaw_rate(heading, heading[0], np.zeros(0), k_spread, dt)
-        kins.append({"step": j, "v": kin["v"], "accel": kin["accel"], "yaw": yaw})
-    kin = {key: np.concatenate([k[key] for k in kins]) for key in ("step", "v", "accel", "yaw")}
-    moving = drive_state(steps, kin, kin["yaw"], conditions.wind_xy_mps, steps.crr[kin["step"]],
-                         conditions)
-    n_moving = kin["step"].size
-    weight = np.full(n_moving, dt)
-    label = labels[steps.segment[kin["step"]]]
-    holds = [(st.start, st.hold_start_s, labels[k]) for k, st in enumerate(stages)
-             if st.hold_start_s > 0] + [(st.end, st.hold_s, labels[k])
-                                        for k, st in enumerate(stages) if st.hold_s > 0]
-    if not holds:
-        return _Samples(moving, weight, label)
-    rest = _at_rest(world, np.array([h[0] for h in holds], float), conditions)
-    return _Samples(MotionState.concat([moving, rest], [n_moving, len(holds)]),
-                    np.r_[weight, [h[1] for h in holds]], np.r_[label, [h[2] for h in holds]])
-
-
-def _drive_run(edges, speeds, accel: float, dt: float, duty: float) -> dict:
-    """``Driver.run`` of one run to its end, asked for about the samples it needs (twice the
-    time at the slowest speed plus the ramps, over the duty cycle) so that a short run does not
-    allocate the Driver's full chunk, and again until it ends."""
-    driver = Driver(edges, speeds, np.ones(speeds.size), accel, dt, duty, STOP_EVERY_S)
-    slow = max(float(np.min(speeds)), 1e-3)
-    guess = int(2 * (edges[-1] / slow + 2 * float(np.max(speeds)) / accel) / (dt * duty)) + 16
-    parts = [driver.run(guess)]
-    while not driver.finished:
-        if len(parts) >= 8:  # the guess is an upper bound several times over
-            raise OrangeError(f"a mission run of {edges[-1]:g} m did not end in "
-                              f"{8 * guess * dt:g} s of driving")
-        parts.append(driver.run(guess))
-    if len(parts) == 1:
-        return parts[0]
-    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
-
-
-def _at_rest(world, xyz: np.ndarray, conditions) -> MotionState:
-    """Samples at rest at ``xyz`` (n, 3): a hold (hover for an aerial robot) [m]."""
-    x, y, n = xyz[:, 0], xyz[:, 1], len(xyz)
-    return MotionState(
-        speed_mps=np.zeros(n), dir_x=np.zeros(n), dir_y=np.zeros(n),
-        wind_x_mps=np.full(n, conditions.wind_xy_mps[0]),
-        wind_y_mps=np.full(n, conditions.wind_xy_mps[1]),
-        crr=np.asarray(world.crr_at(x, y), float),
-        sensor_rate_Hz=np.full(n, conditions.sensor_rate_Hz),
-        surface_code=np.asarray(world.surface_code_at(x, y)), channels=conditions.channels)
-
-
-def _totals(model, samples: _Samples, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Energy [J], gradient d/d theta [J per unit] and time [s] per label, labels 0..n-1."""
-    m = samples.label.size
-    power = np.broadcast_to(np.asarray(model.power_W(samples.state), float), (m,))
-    jac = np.broadcast_to(np.asarray(model.power_jacobian(samples.state), float),
-                          (m, len(model.theta)))
-    w = samples.weight_s
-    energy = np.bincount(samples.label, power * w, minlength=n)
-    grad = np.stack([np.bincount(samples.label, jac[:, i] * w, minlength=n)
-                     for i in range(jac.shape[1])], axis=-1) if jac.shape[1] else np.zeros((n, 0))
-    return energy, grad, np.bincount(samples.label, w, minlength=n)
-
-
 # --- the check --------------------------------------------------------------------------------
 
 
@@ -575,27 +193,64 @@ def _context(scenario):
     return context_of(scenario)
 
 
-def _check_placement(mission: Mission, world, aerial: bool) -> None:
-    """Refuse a mission off the map, or an aerial one below the terrain."""
+def _ground_above_home(world, mission: Mission):
+    """``ground(x, y)``: the height of the world's ground above home's [m] (0 on flat
+    ground)."""
+    home = mission.waypoints[0]
+    home_z = float(world.elevation_at(home.x_m, home.y_m))
+    return lambda x, y: np.asarray(world.elevation_at(x, y), float) - home_z
+
+
+def _placed(mission: Mission, world, aerial: bool, in_map_frame: bool):
+    """The mission with every altitude above home (terrain-relative ones placed on the
+    world's ground), the ground function, and the warnings of a local frame.
+
+    In the map frame a mission off the map, or an aerial one with a waypoint below the ground
+    there, is refused; a waypoint below home is fine above the ground (a valley surveyed from
+    a ridge). In a local frame (no origin) the terrain is unknown: a waypoint below home is
+    said, not refused."""
+    if in_map_frame:
+        check_on_map(world, mission.xyz_m[:, 0], mission.xyz_m[:, 1], mission.source,
+                     "waypoint")
+    ground_m = _ground_above_home(world, mission)
+    mission = mission.above_home(ground_m)
+    if not aerial:
+        return mission, ground_m, ()
     xyz = mission.xyz_m
-    check_on_map(world, xyz[:, 0], xyz[:, 1], mission.source, "waypoint")
-    if aerial:
-        ground = world.elevation_at(xyz[:, 0], xyz[:, 1]) - world.elevation_at(xyz[0, 0],
-                                                                                xyz[0, 1])
-        low = np.flatnonzero(xyz[1:, 2] < ground[1:] - 1e-6)
-        if low.size:
-            i = int(low[0]) + 1
-            raise InputError(f"{mission.source}: waypoint {i} at {xyz[i, 2]:g} m above home is "
-                             f"below the ground there ({ground[i]:g} m above home)")
+    if not in_map_frame:
+        below = int(np.sum(xyz[1:, 2] < 0))
+        return mission, ground_m, (f"{below} waypoint(s) below home: without the map's "
+                                   "origin nothing checks them against the ground",) \
+            if below else ()
+    ground = ground_m(xyz[:, 0], xyz[:, 1])
+    low = np.flatnonzero(xyz[1:, 2] < ground[1:] - 1e-6)
+    if low.size:
+        i = int(low[0]) + 1
+        raise InputError(f"{mission.source}: waypoint {i} at {xyz[i, 2]:g} m above home is "
+                         f"below the ground there ({ground[i]:g} m above home)")
+    return mission, ground_m, ()
 
 
-def _samples_per_m(stages: list[_Stage], duty: float, step_m: float) -> float:
+def _flight(mission: Mission, ctx, in_map_frame: bool, duty: float):
+    """What checking and sampling a mission share: (mission above home, world, robot,
+    stages with corners, sub-step length [m], the ground's height above home ``ground(x,
+    y)`` [m], warnings), its size checked."""
+    robot = robot_limits(ctx)
+    world = ctx.world if in_map_frame else FlatWorld(ctx.world)
+    mission, ground_m, warnings = _placed(mission, world, robot.aerial, in_map_frame)
+    step_m = max_step_m(world)
+    stages = with_corners(mission_stages(mission, robot, ground_m), mission, robot)
+    _check_size(mission, stages, duty, step_m)
+    return mission, world, robot, stages, step_m, ground_m, warnings
+
+
+def _samples_per_m(stages: list[Stage], duty: float, step_m: float) -> float:
     """Upper bound of samples (or sub-steps) per metre of the stages' flight."""
     slowest = min(st.speed for st in stages)
     return max(1.0 / (slowest * SAMPLE_DT_S * duty), 1.0 / step_m)
 
 
-def _check_size(mission: Mission, stages: list[_Stage], duty: float, step_m: float) -> None:
+def _check_size(mission: Mission, stages: list[Stage], duty: float, step_m: float) -> None:
     """Refuse a mission whose own samples would exceed ``MAX_MISSION_SAMPLES``, or whose
     ways home from every leg end would exceed ``MAX_MISSION_HOME_SAMPLES`` (driven in
     batches of ``HOME_BATCH_SAMPLES``)."""
@@ -625,7 +280,7 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
     wind : wind (x east, y north) [m/s] instead of the scenario's
     worst_wind : also sweep the wind's direction (same speed) for the costliest one
     in_map_frame : False for a mission in a local frame at its home (a map without origin):
-        flat default ground, no placement check
+        flat default ground, no placement check (a waypoint below home is warned of)
 
     Raises
     ------
@@ -634,18 +289,13 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
     """
     ctx = _context(scenario)
     conditions = ctx.conditions if wind is None else ctx.conditions.with_wind(wind)
-    robot = _robot(ctx)
-    if in_map_frame:
-        _check_placement(mission, ctx.world, robot.aerial)
-        world = ctx.world
-    else:
-        world = _FlatWorld(ctx.world)
-    step_m = max_step_m(world)
-    stages = _with_corners(_stages(mission, robot), mission, robot)
-    _check_size(mission, stages, conditions.duty_cycle, step_m)
+    mission, world, robot, stages, step_m, ground_m, warnings = _flight(
+        mission, ctx, in_map_frame, conditions.duty_cycle)
+    if in_map_frame and robot.aerial:
+        warnings += _passing_under_ground(stages, ground_m, step_m)
     n = len(stages)
-    samples = _drive([(None, stages)], world, robot, conditions, step_m)
-    energy, grad, duration = _totals(ctx.model, samples, n)
+    samples = drive([(None, stages)], world, robot, conditions, step_m)
+    energy, grad, duration = energy_totals(ctx.model, samples, n)
     home_e, home_g = _ways_home(stages, mission, world, robot, conditions, step_m, ctx.model)
     legs, total_reserve = _legs(stages, energy, grad, duration, home_e, home_g, ctx)
     avail = ctx.scenario.battery.usable_J
@@ -660,26 +310,53 @@ def check_mission(mission: Mission, scenario, *, wind=None, worst_wind: bool = F
         float(duration.sum()), float(avail), total_reserve, verdict, failing,
         _point_of_no_return(legs, start_margin), conditions.wind_xy_mps, worst,
         rule.describe(), start_margin,
-        _leaving_free_space(stages, ctx.world) if in_map_frame else ())
+        warnings + (_leaving_free_space(stages, ctx.world) if in_map_frame else ()))
 
 
 MAX_WARNED_LEGS = 5
-"""Legs named one by one in the warning about free space (the rest are counted)."""
+"""Legs named one by one in a warning about legs (the rest are counted)."""
+UNDER_GROUND_M = 1e-3
+"""A leg this far below the ground's surface somewhere between its ends passes through it
+[m] (round-off of the raster's interpolation is not)."""
 
 
-def _leaving_free_space(stages: list[_Stage], world) -> tuple[str, ...]:
+def _legs_named(bad: list[Stage], what: str) -> tuple[str, ...]:
+    """One warning naming the legs ``bad`` (at most ``MAX_WARNED_LEGS``), or none."""
+    if not bad:
+        return ()
+    named = ", ".join(f"{st.kind} {st.from_wp} -> {st.to_wp}" for st in bad[:MAX_WARNED_LEGS])
+    more = f" and {len(bad) - MAX_WARNED_LEGS} more" if len(bad) > MAX_WARNED_LEGS else ""
+    return (f"{len(bad)} leg(s) {what}: {named}{more}",)
+
+
+def _leaving_free_space(stages: list[Stage], world) -> tuple[str, ...]:
     """One warning naming the legs whose straight line leaves the map's free space."""
     flat = [st for st in stages if not st.vertical]
     if not flat:
         return ()
     free = world.segments_free([st.start[:2] for st in flat], [st.end[:2] for st in flat])
-    bad = [st for st, ok in zip(flat, free) if not ok]
-    if not bad:
+    return _legs_named([st for st, ok in zip(flat, free) if not ok],
+                       "leave the map's free space (an obstacle, a no-go zone or the boundary, "
+                       "within the robot's keep-away)")
+
+
+def _passing_under_ground(stages: list[Stage], ground_m, step_m: float) -> tuple[str, ...]:
+    """One warning naming the legs whose straight line dips below the map's ground between
+    its ends (a ridge between two waypoints above the ground), looked at every ``step_m``
+    [m] (at most the mission's own samples, which ``_check_size`` bounds)."""
+    flat = [st for st in stages if not st.vertical]
+    if not flat:
         return ()
-    named = ", ".join(f"{st.kind} {st.from_wp} -> {st.to_wp}" for st in bad[:MAX_WARNED_LEGS])
-    more = f" and {len(bad) - MAX_WARNED_LEGS} more" if len(bad) > MAX_WARNED_LEGS else ""
-    return (f"{len(bad)} leg(s) leave the map's free space (an obstacle, a no-go zone or the "
-            f"boundary, within the robot's keep-away): {named}{more}",)
+    counts = np.array([math.ceil(st.horiz_m / step_m) + 1 for st in flat])
+    leg = np.repeat(np.arange(len(flat)), counts)
+    frac = np.concatenate([np.linspace(0.0, 1.0, c) for c in counts])
+    start = np.array([st.start for st in flat], float)
+    delta = np.array([st.end for st in flat], float) - start
+    p = start[leg] + frac[:, None] * delta[leg]
+    under = p[:, 2] < ground_m(p[:, 0], p[:, 1]) - UNDER_GROUND_M
+    return _legs_named([flat[i] for i in np.unique(leg[under])],
+                       "pass below the map's ground between their waypoints (the energy is "
+                       "that of the straight leg)")
 
 
 def mission_samples(mission: Mission, scenario, *, in_map_frame: bool = True):
@@ -691,43 +368,27 @@ def mission_samples(mission: Mission, scenario, *, in_map_frame: bool = True):
     ``energy_J`` under that model (a cross-validation refits the model per fold).
     """
     ctx = _context(scenario)
-    robot = _robot(ctx)
-    world = ctx.world if in_map_frame else _FlatWorld(ctx.world)
-    step_m = max_step_m(world)
-    stages = _with_corners(_stages(mission, robot), mission, robot)
-    _check_size(mission, stages, ctx.conditions.duty_cycle, step_m)
-    samples = _drive([(None, stages)], world, robot, ctx.conditions, step_m)
+    _, world, robot, stages, step_m, _, _ = _flight(mission, ctx, in_map_frame,
+                                                    ctx.conditions.duty_cycle)
+    samples = drive([(None, stages)], world, robot, ctx.conditions, step_m)
     return samples.state, samples.weight_s
 
 
 def _ways_home(stages, mission, world, robot, conditions, step_m, model):
-    """Energy [J] and gradient of the way home from each stage's end: a straight leg home
-    at that altitude (at the speed leaving the last waypoint, the mission's own return, or
-    cruise), then the landing; 0 once home and landed, or at the
-    end of a mission that ends away from home."""
+    """Energy [J] and gradient of the way home from each stage's end (``way_home``: at the
+    speed leaving the last waypoint, the mission's own return, or cruise); 0 once home and
+    landed, or at the end of a mission that ends away from home."""
     home = (mission.waypoints[0].x_m, mission.waypoints[0].y_m)
     return_speed = mission.waypoints[-1].speed_mps  # the mission's own return (None: cruise)
     groups = []
-    for k, st in enumerate(stages):
-        if k == len(stages) - 1:
-            continue  # the end of the mission: nothing left to fly
-        here = st.end
-        way = []
-        if math.hypot(here[0] - home[0], here[1] - home[1]) > AT_HOME_M:
-            end = (*home, here[2])
-            way.append(_Stage("return", st.to_wp, 0, here, end,
-                              _leg_speed(robot, return_speed, here, end)))
-            here = end
-        if robot.aerial and here[2] > 0:
-            end = (here[0], here[1], 0.0)
-            way.append(_Stage("landing", 0, 0, here, end,
-                              _leg_speed(robot, robot.landing_mps, here, end)))
+    for k, st in enumerate(stages[:-1]):  # from the end of the mission nothing is left to fly
+        way = way_home(st.end, home, st.to_wp, return_speed, robot)
         if way:
             groups.append((k, way))
     energy, grad = np.zeros(len(stages)), np.zeros((len(stages), len(model.theta)))
     for batch in _batches(groups, _samples_per_m(stages, conditions.duty_cycle, step_m)):
-        samples = _drive(batch, world, robot, conditions, step_m)
-        e, g, _ = _totals(model, samples, len(stages))
+        samples = drive(batch, world, robot, conditions, step_m)
+        e, g, _ = energy_totals(model, samples, len(stages))
         energy, grad = energy + e, grad + g
     return energy, grad
 
@@ -791,7 +452,7 @@ def _point_of_no_return(legs, start_margin_J: float) -> tuple[int, float] | None
     return legs[-1].to_waypoint, legs[-1].distance_m
 
 
-def _worst_wind(model, samples: _Samples, conditions, n: int) -> tuple[float, float]:
+def _worst_wind(model, samples: Samples, conditions, n: int) -> tuple[float, float]:
     """(from_deg, energy_J) of the costliest direction of the checked wind's speed."""
     from orange_plan.physics.wind import wind_xy_mps
 

@@ -162,7 +162,7 @@ def segment_energy_J(cost: EdgeCostContext, x0: float, y0: float, x1: float, y1:
 
 def bitstar_path(cost: EdgeCostContext, exact: EdgeCostContext, start_xy, goal_xy,
                  seconds: float = 1.0, seed: int = 0) -> PlannedPath | None:
-    """Minimum-energy path by OMPL BIT* with an asymmetric energy objective (notes §3).
+    """Minimum-energy path by OMPL BIT* with an asymmetric energy objective.
 
     Validity on the occupancy raster, motion cost from ``physics.pathcost`` (``cost``); the
     result is checked exactly and re-evaluated with ``exact``. None if BIT* finds no exact
@@ -184,7 +184,7 @@ def bitstar_path(cost: EdgeCostContext, exact: EdgeCostContext, start_xy, goal_x
         def motionCost(self, s1, s2):
             return ob.Cost(segment_energy_J(cost, s1[0], s1[1], s2[0], s2[1]))
 
-        def isSymmetric(self):  # climbing != descending (notes §3)
+        def isSymmetric(self):  # climbing != descending: the cost of a path depends on its direction
             return False
 
     a, b = si.allocState(), si.allocState()

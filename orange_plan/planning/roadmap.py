@@ -1,7 +1,7 @@
 """Energy roadmap: OMPL PRM* geometry, directed energy weights in numpy, Dijkstra fields.
 
 The geometry comes from OMPL's PRM* grown without ``solve()`` (a Python objective in PRM's
-``solve()`` deadlocks, notes §6), copied to numpy at once; no OMPL object outlives
+``solve()`` deadlocks), copied to numpy at once; no OMPL object outlives
 ``roadmap_geometry``. Every undirected edge is re-checked with the exact shapely test, then
 weighted in both directions by the scenario's EnergyModel (``physics.pathcost``): the cost is
 asymmetric (climbing costs, descending gives nothing back without regen). Dijkstra on the
@@ -147,7 +147,7 @@ def ompl_raster_setup(world, terrain, seed: int = 0):
     rows, x0, y0, inv = terrain.free_rows, terrain.x0_m, terrain.y0_m, 1.0 / terrain.cell_m
     n_rows, n_cols = terrain.shape
 
-    def valid(state) -> bool:  # pure Python on list-of-lists: ~0.4 us per call (notes §2)
+    def valid(state) -> bool:  # pure Python on list-of-lists: ~0.4 us per call
         i, j = int((state[1] - y0) * inv + 0.5), int((state[0] - x0) * inv + 0.5)
         return 0 <= i < n_rows and 0 <= j < n_cols and rows[i][j]
 
@@ -176,7 +176,7 @@ def roadmap_geometry(world, terrain, n_vertices: int, seed: int = 0,
 
     ss, si, _space, _valid = ompl_raster_setup(world, terrain, seed)  # held until return
     # Edges are re-checked exactly with shapely afterwards (0.3 s for 150k edges): OMPL only
-    # needs to test the endpoints, which saves millions of Python validity calls (notes §2).
+    # needs to test the endpoints, which saves millions of Python validity calls.
     si.setStateValidityCheckingResolution(0.999)
     a, b = si.allocState(), si.allocState()
     home = world.home_xy_m
@@ -201,7 +201,9 @@ def roadmap_geometry(world, terrain, n_vertices: int, seed: int = 0,
     edges = [data.getEdges(i) for i in range(n)]
     src = np.repeat(np.arange(n), [len(e) for e in edges])
     dst = np.fromiter((j for e in edges for j in e), dtype=np.int64, count=len(src))
-    # Only numpy leaves this function: no OMPL object or view outlives it (notes §5-6).
+    # Only numpy leaves this function: no OMPL object or view outlives it (planner data or a
+    # state read after its planner is gone is a use-after-free; one held by a module global
+    # is reported as a leak at exit).
     lo, hi = np.minimum(src, dst), np.maximum(src, dst)
     key = np.unique((lo * n + hi)[lo != hi])  # one entry per undirected edge
     pairs = np.stack([key // n, key % n], axis=1)

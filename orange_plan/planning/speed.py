@@ -15,7 +15,7 @@ the planner evaluates on numpy arrays (no physics written twice).
 
 How it is solved (``SpeedSolver``): one parametric MX ``nlpsol`` (IPOPT) per (N, objective),
 built once and cached; the pieces' geometry is the parameter vector, so a new path of the
-same N only re-solves, warm-started from the previous speeds (notes §7).
+same N only re-solves, warm-started from the previous speeds.
 """
 
 from __future__ import annotations

@@ -473,7 +473,7 @@ def distance_context(ctx):
     """
     world = ctx.world
     flat_map = replace(world.map, elevation=None, surfaces=())
-    flat_world = replace(world, map=flat_map, wind_xy_mps=(0.0, 0.0))
+    flat_world = replace(world, map=flat_map)
     return replace(ctx, world=flat_world, conditions=ctx.conditions.with_wind((0.0, 0.0)))
 
 

@@ -91,8 +91,8 @@ def generalised_note(sections: dict[str, Section]) -> Section:
         "these experiments are coefficient offsets, gusts, roughness and battery ageing, "
         "none of them a term the scenarios lack, so there is nothing for `orange-plan "
         "diagnose` to add and no row is faked. Diagnosis is measured where terms are "
-        "concealed (`orange-plan bench diagnose`: the README's 'Diagnosis: measured', and "
-        "'Diagnosis on the real recordings' for the BorealTC and BMW i3 runs).",
+        "concealed (`orange-plan bench diagnose`, docs/benchmarks/diagnose.md, which also "
+        "covers diagnosis on the real BorealTC and BMW i3 recordings).",
     ])
 
 

@@ -79,7 +79,7 @@ def section(rows: list[dict], figure: str) -> Section:
         "Energies from `bench calibration` (two folds: calibrate on every other run, predict "
         "the others).",
         "The Husky's recorded 'power' is 24 V x motor current (torque), so its a-priori model "
-        "misses most of it (README, Calibration); the BMW's a-priori model misses the cabin "
+        "misses most of it (docs/benchmarks/calibration.md); the BMW's a-priori model misses the cabin "
         "heater and warm-up.",
     ]
     data = {ds: [{"group": c["group"], "runs": c["runs"],

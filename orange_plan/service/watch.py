@@ -13,15 +13,9 @@ none may stop the watch, and the watch must never hold the vehicle's link.
 
 How it is solved:
 
-* ``TelemetryReader`` turns messages into session samples (``t_s``, ``x_m``, ``y_m``,
-  ``voltage_V``, ``current_A``, ``soc``, ``wind_mps``, ``wind_from_deg``): positions through
-  the map's ``origin`` (``export.autopilot.latlon_to_xy``); mission time from the vehicle's
-  time since boot, the first position heard being ``FIRST_SAMPLE_S``; a position not newer
-  than the last one is a duplicate or out of order and is dropped (counted and said); a time
-  since boot that falls back by more than ``REBOOT_BACKSTEP_S`` is a reboot: mission time goes
-  on from where it was. Battery fields marked unknown (``UINT16_MAX`` voltage, ``-1`` current
-  or remaining) keep the last known value; until voltage and current are both known no
-  sample is made.
+* ``TelemetryReader`` (``service.watch_telemetry``) turns messages into session samples:
+  positions on the map, mission time from the vehicle's time since boot (reboots and
+  out-of-order messages handled), the last known battery value where a field is unknown.
 * ``Watch.tick`` feeds the samples gathered since the last decision as one batch
   (``MissionSession.feed``), reports the decision on the terminal (a line per
   ``line_every_s`` and on every change of action), to the ground station (``NAMED_VALUE_FLOAT``
@@ -38,14 +32,13 @@ How it is solved:
 * With ``rtl``, the first ``return_home`` sends ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` once; a
   ``COMMAND_ACK`` other than accepted, or none within ``ack_timeout_s``, sends it again, at
   most ``rtl_attempts`` times in all. Without ``rtl`` no command is ever sent.
-* The link is read by a thread of its own (``run_watch``): a slow decision never leaves the
+* The link is read by a thread of its own (``run_watch``, ``service.watch_link``): a slow decision never leaves the
   socket unread; decisions take the queued messages for at most ``DRAIN_S`` at a time. A
   link silent for ``silent_s`` is said once, and its return too.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import queue
 import threading
@@ -56,14 +49,31 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from orange_plan.errors import InputError, check_range
-from orange_plan.export.autopilot import MAX_ALTITUDE_M, latlon_to_xy
-from orange_plan.physics.wind import wind_speed_and_from
-from orange_plan.service.mavlink_link import INT_UNKNOWN, UINT16_UNKNOWN, text_bytes
+from orange_plan.export.autopilot import MAX_ALTITUDE_M
+from orange_plan.service.mavlink_link import text_bytes
+from orange_plan.service.watch_link import (
+    DRAIN_S,
+    QUEUE_MAX,
+    download_mission,
+    json_lines,
+    plan_from_items,
+    route_plan,
+    run_watch,
+    stdin_lines,
+    wait_for_vehicle,
+)
+from orange_plan.service.watch_telemetry import (
+    FIRST_SAMPLE_S,
+    INVALID_AUTOPILOT,
+    ONBOARD_CONTROLLER,
+    REBOOT_BACKSTEP_S,
+    TelemetryReader,
+)
 
-FIRST_SAMPLE_S = 0.1
-"""Mission time of the first position heard [s] (a session starts at 0 at home)."""
-REBOOT_BACKSTEP_S = 2.0
-"""A time since boot that falls back by more than this is a reboot, not a late message [s]."""
+__all__ = ["DRAIN_S", "FIRST_SAMPLE_S", "QUEUE_MAX", "REBOOT_BACKSTEP_S", "TelemetryReader",
+           "Watch", "WatchOptions", "download_mission", "json_lines", "live_line",
+           "plan_from_items", "route_plan", "run_watch", "stdin_lines", "wait_for_vehicle"]
+
 PNR_WINDOW_S = 60.0
 """Mission time over which the margin's fall is measured for the point of no return [s]."""
 NAMED_VALUES = {"homing_margin_J": "op_margin", "return_probability": "op_p_home",
@@ -75,181 +85,6 @@ ACK_RESULTS = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupp
                4: "failed", 5: "in progress", 6: "cancelled"}
 SEVERITY = {"return_home": 2, "replan": 4, "continue": 6}
 """STATUSTEXT severity per action: critical, warning, info (a flag: warning)."""
-GCS_TYPE, INVALID_AUTOPILOT, ONBOARD_CONTROLLER = 6, 8, 18
-"""A HEARTBEAT from a ground station (MAV_TYPE_GCS) or without autopilot is not the vehicle's."""
-
-
-@dataclass
-class _Battery:
-    voltage_V: float | None = None
-    current_A: float | None = None
-    soc: float | None = None
-
-
-class TelemetryReader:
-    """Vehicle messages -> session samples, and what is wrong with the link (module
-    docstring). ``say(kind, text)`` is told each fault once per ``repeat_s`` of wall time."""
-
-    def __init__(self, origin, home_xy_m, say, clock=time.monotonic, repeat_s: float = 10.0):
-        self.origin, self.home_xy_m, self.say, self.clock = origin, home_xy_m, say, clock
-        self.repeat_s = repeat_s
-        self.battery = _Battery()
-        self.wind: tuple[float, float] | None = None
-        self.vehicle: tuple[int, int] | None = None
-        self.home_ned: tuple[float, float] | None = None  # HOME_POSITION x (north), y (east)
-        self.samples: list[dict] = []
-        self.arrived: list[float] = []  # wall time each sample arrived
-        self.dropped = 0
-        self.reboots = 0
-        self._boot_last: float | None = None
-        self._boot_first: float | None = None
-        self._offset_s = 0.0
-        self._t_last = 0.0
-        self._global_seen = False
-        self._said: dict[str, float] = {}
-
-    @property
-    def boot_last_s(self) -> float | None:
-        """The vehicle's time since boot of the newest sample taken [s]."""
-        return self._boot_last
-
-    def tell(self, kind: str, text: str) -> None:
-        """Say a fault, at most once per ``repeat_s`` for each kind."""
-        now = self.clock()
-        if now - self._said.get(kind, -math.inf) >= self.repeat_s:
-            self._said[kind] = now
-            self.say(kind, text)
-
-    def take(self, msg) -> None:
-        """One message from the link (any other type is ignored)."""
-        handler = getattr(self, f"_on_{msg.get_type().lower()}", None)
-        if handler is not None:
-            handler(msg)
-
-    # --- vehicle and time ------------------------------------------------------------
-    def _on_heartbeat(self, msg) -> None:
-        if msg.type == GCS_TYPE or msg.autopilot == INVALID_AUTOPILOT:
-            return
-        who = (msg.get_srcSystem(), msg.get_srcComponent())
-        if self.vehicle is None:
-            self.say("vehicle", f"vehicle {who[0]}/{who[1]} heard")
-        self.vehicle = who
-
-    def _mission_time(self, time_boot_ms: int) -> float | None:
-        """Mission time of a message stamped ``time_boot_ms``; None for a duplicate or a
-        message older than the last one taken."""
-        boot = time_boot_ms / 1000.0
-        if self._boot_first is None:
-            self._boot_first = self._boot_last = boot
-            return FIRST_SAMPLE_S
-        if boot < self._boot_last - REBOOT_BACKSTEP_S:
-            self.reboots += 1
-            self.say("reboot", f"the vehicle rebooted (time since boot fell from "
-                               f"{self._boot_last:.1f} s to {boot:.1f} s); mission time goes on")
-            # mission time continues one nominal step after the last sample
-            self._offset_s = self._t_last + FIRST_SAMPLE_S - (boot - self._boot_first)
-            self._boot_last = boot
-            return self._t_last + FIRST_SAMPLE_S
-        if boot <= self._boot_last:
-            self.dropped += 1
-            self.tell("out_of_order", f"{self.dropped} duplicate or out-of-order position "
-                                      "message(s) dropped so far")
-            return None
-        self._boot_last = boot
-        return boot - self._boot_first + FIRST_SAMPLE_S + self._offset_s
-
-    # --- position ----------------------------------------------------------------------
-    def _on_global_position_int(self, msg) -> None:
-        self._global_seen = True
-        # placed on the map per batch (``pop``): the conversion is vectorised
-        self._sample(msg.time_boot_ms, msg.lat / 1e7, msg.lon / 1e7, geodetic=True)
-
-    def _on_local_position_ned(self, msg) -> None:
-        if self._global_seen:  # the global position is the one placed by the origin
-            return
-        if self.home_ned is None:
-            self.tell("no_home", "LOCAL_POSITION_NED without HOME_POSITION: cannot place it "
-                                 "on the map yet")
-            return
-        north, east = msg.x - self.home_ned[0], msg.y - self.home_ned[1]
-        self._sample(msg.time_boot_ms, self.home_xy_m[0] + east, self.home_xy_m[1] + north)
-
-    def _on_home_position(self, msg) -> None:
-        self.home_ned = (float(msg.x), float(msg.y))
-
-    def _sample(self, time_boot_ms: int, x: float, y: float, geodetic: bool = False) -> None:
-        """A sample at (x, y) [m], or at latitude x, longitude y [deg] when ``geodetic``."""
-        b = self.battery
-        if b.voltage_V is None or b.current_A is None:
-            self.tell("battery_unknown", "no battery voltage and current yet: positions "
-                                         "wait for them")
-            return
-        t = self._mission_time(time_boot_ms)
-        if t is None:
-            return
-        self._t_last = t
-        row = {"t_s": t, "x_m": x, "y_m": y, "voltage_V": b.voltage_V, "current_A": b.current_A,
-               "_geodetic": geodetic}
-        if b.soc is not None:
-            row["soc"] = b.soc
-        if self.wind is not None:
-            row["wind_mps"], row["wind_from_deg"] = self.wind
-        self.samples.append(row)
-        self.arrived.append(self.clock())
-
-    # --- battery and wind ----------------------------------------------------------------
-    def _on_battery_status(self, msg) -> None:
-        if msg.id != 0:  # the first battery powers the vehicle
-            return
-        cells = [v for v in msg.voltages if v != UINT16_UNKNOWN]
-        self._battery(sum(cells) / 1000.0 if cells else None, msg.current_battery,
-                      msg.battery_remaining, "BATTERY_STATUS")
-
-    def _on_sys_status(self, msg) -> None:
-        volts = None if msg.voltage_battery == UINT16_UNKNOWN else msg.voltage_battery / 1000.0
-        self._battery(volts, msg.current_battery, msg.battery_remaining, "SYS_STATUS")
-
-    def _battery(self, volts, current_cA: int, remaining: int, where: str) -> None:
-        unknown = []
-        if volts is None or not volts > 0:
-            unknown.append("voltage")
-        else:
-            self.battery.voltage_V = volts
-        if current_cA == INT_UNKNOWN:
-            unknown.append("current")
-        else:
-            self.battery.current_A = current_cA / 100.0
-        if remaining == INT_UNKNOWN or not 0 <= remaining <= 100:
-            unknown.append("remaining")
-        else:
-            self.battery.soc = remaining / 100.0
-        if unknown:
-            self.tell(f"battery_{'_'.join(unknown)}",
-                      f"{where} without {', '.join(unknown)} (marked unknown): the last known "
-                      "value stands")
-
-    def _on_wind(self, msg) -> None:  # ArduPilot: speed and the direction it comes from
-        if math.isfinite(msg.speed) and math.isfinite(msg.direction):
-            self.wind = (float(msg.speed), float(msg.direction) % 360.0)
-
-    def _on_wind_cov(self, msg) -> None:  # PX4: the air's velocity, north and east
-        if math.isfinite(msg.wind_x) and math.isfinite(msg.wind_y):
-            speed, from_deg = wind_speed_and_from(float(msg.wind_y), float(msg.wind_x))
-            self.wind = (float(speed), float(from_deg))
-
-    def pop(self) -> tuple[list[dict], list[float]]:
-        """The samples made since the last call and their arrival times."""
-        rows, arrived = self.samples, self.arrived
-        self.samples, self.arrived = [], []
-        placed = [r for r in rows if r.pop("_geodetic")]
-        if placed:
-            lat = np.array([r["x_m"] for r in placed], float)
-            lon = np.array([r["y_m"] for r in placed], float)
-            x, y = latlon_to_xy(self.origin, lat, lon)
-            for r, xi, yi in zip(placed, np.atleast_1d(x), np.atleast_1d(y)):
-                r["x_m"], r["y_m"] = float(xi), float(yi)
-        return rows, arrived
-
 
 @dataclass(frozen=True)
 class WatchOptions:
@@ -667,180 +502,3 @@ def _replan_copy(session, state: dict, options, result: list) -> None:
         result.append((plan, items))
     except OrangeError as exc:
         result.append(f"no new tour to upload: {exc}")
-
-
-def stdin_lines(answers: queue.Queue, stream=None) -> threading.Thread:
-    """A thread putting each line typed on the terminal into ``answers``."""
-    import sys
-
-    def read():
-        for line in stream or sys.stdin:
-            answers.put(line)
-
-    thread = threading.Thread(target=read, daemon=True, name="watch-stdin")
-    thread.start()
-    return thread
-
-
-DRAIN_S = 0.1
-"""Longest wall time spent taking queued messages before a decision [s]: a link that
-delivers faster than the watch takes still gets a decision this often."""
-QUEUE_MAX = 100_000
-"""Messages the reading thread holds for the watch at most (~10 min of a 10 Hz vehicle's
-stream); beyond it the oldest wait in the socket and, past its buffer, are lost (said)."""
-
-
-def run_watch(link, watch: Watch, *, stop_after_s: float | None = None,
-              stop_when=None, poll_s: float = 0.02, drain_s: float = DRAIN_S) -> None:
-    """Read the link in a thread of its own and tick the watch until ``stop_after_s`` wall
-    seconds pass or ``stop_when()`` is true.
-
-    The reading thread empties the socket whatever the decisions cost (a slow decision must
-    not let the socket's buffer overflow and lose telemetry); the caller's thread takes the
-    queued messages for at most ``drain_s`` (waiting at most ``poll_s`` for the first), then
-    ticks once.
-    """
-    inbox: queue.Queue = queue.Queue(maxsize=QUEUE_MAX)
-    stop = threading.Event()
-    notes: list[tuple[str, str]] = []  # what the reading thread has to say, said here
-    reader = threading.Thread(target=_read_link, args=(link, inbox, stop, notes), daemon=True,
-                              name="watch-link")
-    reader.start()
-    start = time.monotonic()
-    try:
-        while not ((stop_after_s is not None and time.monotonic() - start >= stop_after_s)
-                   or (stop_when is not None and stop_when())):
-            until = time.monotonic() + drain_s
-            try:
-                msg = inbox.get(timeout=poll_s)
-                while True:
-                    watch.take(msg)
-                    if time.monotonic() >= until:
-                        break
-                    msg = inbox.get_nowait()
-            except queue.Empty:
-                pass
-            while notes:
-                watch.reader.tell(*notes.pop(0))
-            watch.tick()
-    finally:
-        stop.set()
-        reader.join(timeout=1.0)
-
-
-def _read_link(link, inbox, stop, notes: list) -> None:
-    """The reading thread: every message into ``inbox`` until ``stop`` is set; faults go to
-    ``notes`` as (kind, text) for the watch's thread to say."""
-
-    while not stop.is_set():
-        try:
-            msg = link.recv_match(blocking=True, timeout=0.05)
-        except OSError as exc:  # a link that fails is said; the watch goes on without it
-            notes.append(("link_error", f"the link failed to read: {exc}"))
-            stop.wait(0.5)
-            continue
-        if msg is None:
-            continue
-        try:
-            inbox.put(msg, timeout=0.5)
-        except queue.Full:
-            notes.append(("queue_full", "the watch falls behind the link: messages wait in "
-                                        "the socket"))
-
-
-def json_lines(path):
-    """A JSON-lines writer for ``path`` (one object per line, flushed): returns
-    (write, close)."""
-    handle = open(path, "w", encoding="utf-8")  # noqa: SIM115 - closed by the caller
-
-    def write(record: dict) -> None:
-        handle.write(json.dumps(record) + "\n")
-        handle.flush()
-
-    return write, handle.close
-
-
-# --- the plan flown ----------------------------------------------------------------------
-
-
-def wait_for_vehicle(link, timeout_s: float) -> tuple[tuple[int, int], tuple | None]:
-    """The vehicle's (system, component) from its HEARTBEAT and its home (lat, lon, alt AMSL)
-    from HOME_POSITION, waiting at most ``timeout_s`` wall seconds for both (home may stay
-    None). InputError when no vehicle is heard."""
-    end = time.monotonic() + timeout_s
-    vehicle, home = None, None
-    while time.monotonic() < end and (vehicle is None or home is None):
-        msg = link.recv_match(type=["HEARTBEAT", "HOME_POSITION"], blocking=True,
-                              timeout=min(0.5, max(end - time.monotonic(), 0.01)))
-        if msg is None:
-            continue
-        if msg.get_type() == "HEARTBEAT":
-            if msg.type != GCS_TYPE and msg.autopilot != INVALID_AUTOPILOT:
-                vehicle = (msg.get_srcSystem(), msg.get_srcComponent())
-        else:
-            home = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
-    if vehicle is None:
-        raise InputError(f"no vehicle HEARTBEAT heard on the link within {timeout_s:g} s")
-    return vehicle, home
-
-
-def download_mission(link, vehicle: tuple[int, int], timeout_s: float = 2.0,
-                     attempts: int = 3) -> list:
-    """The vehicle's mission items with the MAVLink mission protocol (MISSION_REQUEST_LIST,
-    MISSION_COUNT, MISSION_REQUEST_INT / MISSION_ITEM_INT per item, MISSION_ACK), each
-    request repeated at most ``attempts`` times. InputError when the vehicle does not answer.
-    """
-    from orange_plan.limits import MAX_MISSION_WAYPOINTS
-    from orange_plan.service.mavlink_link import item_from_message
-
-    sysid, compid = vehicle
-
-    def ask(send, kind: str, accept):
-        for _ in range(attempts):
-            send()
-            end = time.monotonic() + timeout_s
-            while time.monotonic() < end:
-                msg = link.recv_match(type=kind, blocking=True,
-                                      timeout=max(end - time.monotonic(), 0.01))
-                if msg is not None and accept(msg):
-                    return msg
-        raise InputError(f"mission download: the vehicle did not answer with {kind} "
-                         f"({attempts} attempts of {timeout_s:g} s)")
-
-    count = ask(lambda: link.mav.mission_request_list_send(sysid, compid, 0),
-                "MISSION_COUNT", lambda m: True).count
-    if count > MAX_MISSION_WAYPOINTS:
-        raise InputError(f"mission download: {count} items, more than the "
-                         f"{MAX_MISSION_WAYPOINTS} taken")
-    items = []
-    for seq in range(count):
-        it = ask(lambda s=seq: link.mav.mission_request_int_send(sysid, compid, s, 0),
-                 "MISSION_ITEM_INT", lambda m, s=seq: m.seq == s)
-        items.append(item_from_message(it))
-    link.mav.mission_ack_send(sysid, compid, 0, 0)  # MAV_MISSION_ACCEPTED
-    return items
-
-
-def plan_from_items(ctx, home, items):
-    """A closed-loop plan of a downloaded mission: its waypoints at their commanded speeds
-    (the scenario's cruise speed where none is given). ``home`` = (lat, lon, alt AMSL)."""
-    from orange_plan.export.missions_in import mission_from_items
-
-    origin = ctx.world.map.origin
-    mission = mission_from_items(home, items, origin, "the vehicle's mission")
-    xy = np.array([(w.x_m, w.y_m) for w in mission.waypoints], float)
-    if mission.returns_home:
-        xy = np.vstack([xy, ctx.world.home_xy_m])
-    speed = np.array([w.speed_mps or ctx.cruise_speed_mps for w in mission.waypoints]
-                     + [ctx.cruise_speed_mps] * (len(xy) - len(mission.waypoints)), float)
-    return route_plan(xy, speed)
-
-
-def route_plan(xy_m, speed_mps):
-    """A route as a plan without planned margins (a closed loop does not read them)."""
-    from orange_plan.planning.plan import Plan
-
-    xy = np.asarray(xy_m, float)
-    zeros = np.zeros(len(xy))
-    return Plan(xy, zeros, np.asarray(speed_mps, float), zeros, zeros, zeros, zeros,
-                np.empty((0, 2)), None, {})

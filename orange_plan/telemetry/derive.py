@@ -10,7 +10,7 @@ import numpy as np
 SMOOTH_WINDOW_S = 0.5
 """Centred moving-average window before differentiating positions or speed [s]."""
 STILL_SPEED_MPS = 0.05
-"""Below this speed the heading of positions is noise: it is held [m/s]."""
+"""Below this horizontal speed the heading of positions is noise: it is held [m/s]."""
 
 
 def duration_s(t_s) -> float:
@@ -68,16 +68,40 @@ def smooth_pieces(values: np.ndarray, window: int, pieces: list[slice]) -> np.nd
     return out
 
 
-def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None) -> np.ndarray:
-    """Unwrapped heading of smoothed positions, held where the robot stands still [rad]."""
+def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None,
+                         still_mps: float = STILL_SPEED_MPS, window: int | None = None
+                         ) -> np.ndarray:
+    """Unwrapped heading of smoothed positions [rad], held where the robot does not move
+    sideways.
+
+    The heading is held where the horizontal speed of the smoothed positions is at most
+    ``still_mps`` [m/s], and where the recorded ``speed_mps`` (when given) is: a vehicle that
+    climbs or descends on the spot has a fast 3-D speed but no heading of its own, and the
+    direction of its few centimetres of drift would turn at hundreds of rad/s. ``window``:
+    samples of the centred moving average (default ``window_samples``; 1: none, for positions
+    already smooth).
+    """
     t = np.asarray(t_s, float)
     pieces = pieces or [slice(0, len(t))]
-    w = window_samples(t)
+    w = window_samples(t) if window is None else window
     xs = smooth_pieces(np.asarray(x_m, float), w, pieces)
     ys = smooth_pieces(np.asarray(y_m, float), w, pieces)
     vx, vy = derivative(xs, t, pieces), derivative(ys, t, pieces)
-    speed = np.hypot(vx, vy) if speed_mps is None else np.asarray(speed_mps, float)
-    return np.unwrap(held_where_valid(np.arctan2(vy, vx), speed > STILL_SPEED_MPS))
+    moving = np.hypot(vx, vy) > still_mps
+    if speed_mps is not None:
+        moving &= np.asarray(speed_mps, float) > still_mps
+    return np.unwrap(held_where_valid(np.arctan2(vy, vx), moving))
+
+
+def position_yaw_rate_radps(x_m, y_m, t_s, pieces=None, speed_mps=None,
+                            still_mps: float = STILL_SPEED_MPS,
+                            window: int | None = None) -> np.ndarray:
+    """Yaw rate of positions: central differences of ``position_heading_rad`` per gap-free
+    piece [rad/s] (zero where the heading is held)."""
+    t = np.asarray(t_s, float)
+    pieces = pieces or [slice(0, len(t))]
+    heading = position_heading_rad(x_m, y_m, t, pieces, speed_mps, still_mps, window)
+    return derivative(heading, t, pieces)
 
 
 def held_where_valid(values: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -78,9 +78,11 @@ Rules
     ``power_W = voltage_V * current_A``; positions -> speed: centred moving average of
     ``x_m``/``y_m`` over ``derive.SMOOTH_WINDOW_S`` = 0.5 s (counted in samples at the median
     interval: at least 3, odd; ends padded by point reflection so a steady trend passes
-    unchanged), then central differences (``numpy.gradient`` on the time stamps); yaw rate: heading ``atan2(dy, dx)`` of the smoothed positions, unwrapped,
-    held while the speed is below ``derive.STILL_SPEED_MPS``, central differences; acceleration:
-    central differences of the speed after the same moving average. Without positions
+    unchanged), then central differences (``numpy.gradient`` on the time stamps); yaw rate:
+    heading ``atan2(dy, dx)`` of the smoothed positions, unwrapped, held while the horizontal
+    speed (or ``v_mps``) is below ``derive.STILL_SPEED_MPS`` (a climb on the spot has no
+    heading), central differences; acceleration: central differences of the speed after the
+    same moving average. Without positions
     and without ``yaw_rate_radps`` the yaw rate is 0 (reported).
 """
 
@@ -100,7 +102,7 @@ from orange_plan.telemetry.derive import (
     derivative,
     duration_s,
     gap_free_pieces,
-    position_heading_rad,
+    position_yaw_rate_radps,
     smooth_pieces,
     window_samples,
 )
@@ -492,7 +494,7 @@ def _check_ranges(cols: Columns, source: str, names=tuple(PHYSICAL_RANGES),
         raise RecordingError(
             f"{source}: column '{col}'{derived} = {v[i]:.6g} at row {row} (CSV line {row + 2}) "
             f"is outside its physical range [{low:.6g}, {high:.6g}] {unit}"
-            f"{hint}; fix or remove the value (README: recordings)"
+            f"{hint}; fix or remove the value (docs/guide/recordings.md)"
         )
 
 
@@ -585,10 +587,11 @@ def _derive(cols: Columns, pieces: list[slice], issues: list, source: str) -> No
         cols["v_mps"] = np.abs(v)
     if "yaw_rate_radps" not in cols:
         if has_xy:
-            heading = position_heading_rad(cols["x_m"], cols["y_m"], t, pieces, cols["v_mps"])
-            cols["yaw_rate_radps"] = derivative(heading, t, pieces)
+            cols["yaw_rate_radps"] = position_yaw_rate_radps(cols["x_m"], cols["y_m"], t, pieces,
+                                                             cols["v_mps"])
             rule = (f"yaw_rate_radps from the heading of positions ({w}-sample moving "
-                    f"average, unwrapped, held below {STILL_SPEED_MPS} m/s), central differences")
+                    f"average, unwrapped, held below {STILL_SPEED_MPS} m/s of horizontal "
+                    "speed), central differences")
         else:
             cols["yaw_rate_radps"] = np.zeros(n)
             rule = "no yaw_rate_radps and no positions: yaw rate set to 0"

@@ -49,7 +49,7 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
     Parameters
     ----------
     recording : the cleaned recording
-    world : optional World: rolling coefficient and surface at (x, y), surface names, wind
+    world : optional World: rolling coefficient and surface at (x, y), surface names
     sensor_rate_Hz : used where the recording has no ``sensor_rate_Hz`` column [Hz]
     default_crr : rolling coefficient where nothing else says [-]; default the world's
         default (map default surface, else robot.crr), else 0
@@ -58,8 +58,9 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
     yaw_rate_column : take the yaw rate from this column instead of ``yaw_rate_radps``
         (e.g. BorealTC's ``wheel_yaw_rate_radps``: skid-steer scrub follows the wheels)
     conditions : the mission's operating conditions; when given, its sensor rate replaces
-        ``sensor_rate_Hz`` and its ``channels`` (the ambient temperature) are the value of a
-        channel whose column the recording lacks (else 0)
+        ``sensor_rate_Hz``, its wind is the wind of a recording without wind columns, and
+        its ``channels`` (the ambient temperature) are the value of a channel whose column
+        the recording lacks (else 0)
 
     Returns
     -------
@@ -81,7 +82,7 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
       ``z_m``: flat.
     * Direction: heading of positions (held while standing); no positions: (1, 0).
     * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological: docs/guide/range.md), else the
-      world's wind, else none.
+      conditions' wind (a session's measured wind: ``conditions.with_wind``), else none.
     * Rolling coefficient: the world at (x, y) when both exist; else the ``surface`` column
       looked up among the map's surfaces (unknown labels: default); else the default.
     * Channels (``physics.state.CHANNELS``, e.g. cabin HVAC power, the requested heating
@@ -100,7 +101,7 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
     cos_t, sin_t = _grade(recording, speed, GRADE_WINDOW_M if grade_window_m is None
                           else grade_window_m)
     dir_x, dir_y = _direction(frame, t, pieces, speed)
-    wind_x, wind_y = _wind(frame, world, n)
+    wind_x, wind_y = _wind(frame, conditions, n)
     crr, code = _rolling(frame, world, default_crr, n)
     if "sensor_rate_Hz" in frame.columns:
         rate = frame["sensor_rate_Hz"].to_numpy(float)
@@ -216,12 +217,12 @@ def _heading_window(t, speed) -> int:
     return min(max(n, 1), max(1, len(t) // 4)) | 1
 
 
-def _wind(frame: pd.DataFrame, world, n: int):
+def _wind(frame: pd.DataFrame, conditions: Conditions | None, n: int):
     if "wind_mps" in frame.columns and "wind_from_deg" in frame.columns:
         return wind_vector_mps(frame["wind_mps"].to_numpy(float),
                                frame["wind_from_deg"].to_numpy(float))
-    if world is not None:
-        wx, wy = world.wind_xy_mps
+    if conditions is not None:
+        wx, wy = conditions.wind_xy_mps
         return np.full(n, float(wx)), np.full(n, float(wy))
     return np.zeros(n), np.zeros(n)
 

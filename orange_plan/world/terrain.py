@@ -1,4 +1,7 @@
-"""World: a validated map plus the scenario's environment, with vectorised terrain queries."""
+"""World: a validated map with the scenario's home and ground, with vectorised terrain queries.
+
+The wind (or water current) is not the world's: the mission's conditions hold it
+(``physics.conditions.Conditions``)."""
 
 from __future__ import annotations
 
@@ -9,7 +12,6 @@ import numpy as np
 import shapely
 
 from orange_plan.errors import InputError, ScenarioError
-from orange_plan.physics.conditions import Conditions
 from orange_plan.world.geomap import Map, load_map
 
 ARC_SEGMENTS = 16
@@ -51,9 +53,6 @@ class World:
         (``inflate_map``); every free-space and collision query reads it
     default_crr : rolling coefficient where no surface polygon applies [-]
     default_surface_name : its name (the map's default_surface, else "default")
-    wind_xy_mps : the scenario's ``Conditions`` wind (or water current) (x east, y north)
-        [m/s], kept only as the fallback wind of recordings without wind columns
-        (``telemetry.state``); planning and simulation read ``Context.conditions``
     home_xy_m : start and return point [m]
     true_map : the map as given (plus map updates): what the sensor sees (coverage counts
         it up to the walls) and what plots draw; None: ``map``
@@ -63,7 +62,6 @@ class World:
     map: Map
     default_crr: float
     default_surface_name: str
-    wind_xy_mps: tuple[float, float]
     home_xy_m: tuple[float, float]
     true_map: Map | None = None
     keep_away_m: float = 0.0
@@ -85,9 +83,8 @@ class World:
             raise ScenarioError(
                 f"{scenario.path}: no home: set mission.home_xy_m or add a 'home' Point to the map"
             )
-        wind = Conditions.of(scenario).wind_xy_mps
         keep_away = scenario.keep_away_m
-        world = cls(m, default_crr, default_name, wind, tuple(home), keep_away_m=keep_away)
+        world = cls(m, default_crr, default_name, tuple(home), keep_away_m=keep_away)
         world = world.with_map(m)
         if world.map.boundary.is_empty or world.map.free_space.is_empty:
             raise ScenarioError(

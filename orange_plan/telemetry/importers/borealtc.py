@@ -38,9 +38,9 @@ from orange_plan.errors import RecordingError
 from orange_plan.telemetry.importers._common import need_rows, onto_times
 
 BUS_VOLTAGE_V = 24.0
-"""Husky A200 nominal bus voltage (data README; Clearpath spec sheet) [V]."""
+"""Husky A200 nominal bus voltage (the data set's documentation; Clearpath spec sheet) [V]."""
 TRACK_WIDTH_M = 0.55
-"""Husky track width (data README) [m]."""
+"""Husky track width (the data set's documentation) [m]."""
 PRO_COLUMNS = ("time", "curL", "curR", "velL", "velR")
 NAME = re.compile(r"^pro_(\d+)\.csv$", re.IGNORECASE)
 

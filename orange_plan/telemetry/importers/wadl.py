@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from orange_plan.errors import RecordingError
-from orange_plan.telemetry.derive import held_where_valid
+from orange_plan.telemetry.derive import position_yaw_rate_radps
 
 GRID_S = 1.0
 """Time step of the recording grid [s]."""
@@ -131,14 +131,6 @@ def _path_speed(t: np.ndarray, knots: pd.DataFrame) -> np.ndarray:
     return speed[index] if speed.size else np.zeros_like(t)
 
 
-def _track_yaw_rate(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Heading rate of the horizontal track, the heading held while nearly still [rad/s]."""
-    dx, dy = np.gradient(x, t), np.gradient(y, t)
-    heading = np.arctan2(dy, dx)
-    held = held_where_valid(heading, np.hypot(dx, dy) >= STILL_MPS)
-    return np.gradient(np.unwrap(held), t)
-
-
 def read_wadl(path: str | Path) -> pd.DataFrame:
     """Read one flight (its ``<id>.csv``; the sibling files are found by name) into the recording
     columns of docs/formats.md on a 1 s grid (see the module docstring).
@@ -163,7 +155,10 @@ def read_wadl(path: str | Path) -> pd.DataFrame:
     for column in ("x_m", "y_m", "z_m"):
         frame[column] = np.interp(t, knots["t_s"], knots[column])
     frame["v_mps"] = _path_speed(t, knots)
-    frame["yaw_rate_radps"] = _track_yaw_rate(t, frame["x_m"].to_numpy(), frame["y_m"].to_numpy())
+    # the positions are already piecewise linear (interpolated knots): no smoothing
+    frame["yaw_rate_radps"] = position_yaw_rate_radps(frame["x_m"].to_numpy(),
+                                                      frame["y_m"].to_numpy(), t,
+                                                      still_mps=STILL_MPS, window=1)
     rt = readings["t_s"].to_numpy(float)
     for column in ("voltage_V", "current_A", "battery_C"):
         frame[column] = np.interp(t, rt, readings[column].to_numpy(float))
