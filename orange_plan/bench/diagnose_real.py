@@ -105,33 +105,12 @@ def bmw_regen(data_dir: str | Path, scenario_path: str | Path,
     return rows
 
 
-def efficiency_profile(d, chosen: list, regen, fit) -> tuple[np.ndarray, np.ndarray]:
-    """The deviance of each efficiency of ``EFFICIENCY_GRID``: ``chosen`` and ``regen`` inside
-    the model (as ``fit`` has them), every other coefficient refitted with the efficiency held,
-    ``n_eff ln(RSS(eff) / RSS_min)`` with ``n_eff = n / tau`` of ``fit``. Returns (grid,
-    deviance)."""
-    from orange_plan.identify.diagnose import _absorb, fit_design
-
-    inside, _, _, _ = _absorb(d, [*chosen, regen], fit)
-    at = inside.base.names.index("regen_efficiency")
-    rss = []
-    for eff in EFFICIENCY_GRID:
-        lower, upper = inside.lower.copy(), inside.upper.copy()
-        lower[at], upper[at] = eff - 1e-9, eff + 1e-9
-        model = inside.base.with_theta({"regen_efficiency": float(eff)})
-        for _ in range(PROFILE_ROUNDS):
-            held = replace(inside, base=model, lower=lower, upper=upper, cache={},
-                           columns=inside.aligned(model.power_jacobian(inside.state)))
-            fixed = fit_design(held, [])
-            model = model.with_theta(dict(zip(model.names, fixed.theta)))
-        rss.append(fixed.rmse_W ** 2)
-    rss = np.asarray(rss)
-    return EFFICIENCY_GRID, d.n / fit.tau * np.log(rss / rss.min())
-
-
 def efficiency_interval(d, chosen: list, regen, fit) -> tuple[float, float]:
     """The 95 % profile-likelihood interval of the efficiency on ``EFFICIENCY_GRID``
-    (``efficiency_profile``): its lowest and highest efficiency under ``CHI2_95``."""
-    grid, deviance = efficiency_profile(d, chosen, regen, fit)
-    inside = grid[deviance <= CHI2_95]
+    (``identify.diagnosis.fitting.efficiency_profile``): its lowest and highest efficiency
+    under ``CHI2_95``."""
+    from orange_plan.identify.diagnosis.fitting import efficiency_profile
+
+    deviance = efficiency_profile(d, chosen, regen, fit, EFFICIENCY_GRID, PROFILE_ROUNDS)
+    inside = EFFICIENCY_GRID[deviance <= CHI2_95]
     return float(inside.min()), float(inside.max())
