@@ -63,7 +63,7 @@ the upper semi-variance of the held-out relative errors, less the part the coeff
 uncertainty explains. Upper, because a reserve guards against runs drawing *more* than
 predicted and energy ratios are skewed that way (r >= -1, unbounded above): on the real
 data the plain variance gave reserves exceeded in 6 of 44 Husky and 2 of 16 BMW held-out
-runs at p = 0.9 (README "Reserve"). For a symmetric error both estimate the same variance.
+runs at p = 0.9 (docs/benchmarks/calibration.md). For a symmetric error both estimate the same variance.
 With one recording there is nothing run-to-run to measure and the scenario's
 ``discrepancy_rel_sd`` (its a priori default) is kept.
 """
@@ -491,7 +491,7 @@ PINNED_SD_RATIO = 0.8
 fraction of the prior sd: the data then carry at least 1/0.8^2 - 1 = 0.56 times the prior's
 information [-]. (0.5, i.e. 3 times, held the ancillary draw of both real data sets in
 ``bench calibration`` at its prior, 29 +- 16 W against 21 +- 21 W on the Husky, and made
-the held-out energy errors slightly worse: README.)"""
+the held-out energy errors slightly worse: docs/benchmarks/calibration.md.)"""
 MIN_EVIDENCE_SIGMA = 2.0
 """Evidence threshold in sd (a two-sided 95 % test) [-]: a no-prior coefficient is pinned
 only when its fitted value is this far from its a priori value (the effect is there at all);

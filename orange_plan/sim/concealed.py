@@ -49,7 +49,7 @@ case ``null-ground-labels``: a terrain classifier's labels, late and sometimes w
 landed: without those periods a hover power and an ancillary draw are the same constant.)
 
 Effect sizes: the share of the run's energy the concealed term carries (30-min runs at 10 Hz,
-seeds 0-4, README "Concealed-effect cases"; the surface and battery shares were measured
+seeds 0-4, docs/guide/diagnosis.md; the surface and battery shares were measured
 before those routes changed): power terms are sized from the simulated mean
 power (ancillary 14-22 %, sensor rate 9-16 %, drift 6-16 %, hvac 10-23 %, battery resistance
 4-10 %, battery temperature 6-10 %); motion terms take physical coefficients (rolling 7-27 %,
