@@ -253,7 +253,7 @@ def test_recording_state_grade_direction_and_defaults():
                        "z_m": 0.05 * t})
     state = recording_state(recording_from_frame(df))
     slope = 0.05
-    assert np.allclose(state.sin_t, slope / math.hypot(1, slope), atol=1e-3)
+    assert np.allclose(state.sin_t, slope, atol=1e-3)  # sin_t v = dz/dt
     assert np.allclose(state.cos_t ** 2 + state.sin_t ** 2, 1.0)
     assert np.allclose(state.dir_y, 1.0) and np.allclose(state.dir_x, 0.0, atol=1e-9)
     assert np.all(state.crr == 0.0) and np.all(state.surface_code == -1)

@@ -6,7 +6,12 @@ trip: whether ``regen`` was named, its fitted efficiency (the share of the negat
 power ``F v`` returned to the battery) and standard error, and the held-out RMSE of
 inertia alone and of inertia with regeneration, both inside the model (a braking sample
 returns nothing with inertia alone, ``eff`` of its negative traction power with regen), with
-the relative gain of the second over the first.
+the relative gain of the second over the first, and what the trip can tell of the
+efficiency: its profile likelihood over ``EFFICIENCY_GRID`` (every other coefficient refitted
+at each efficiency, inside the model) read as a 95 % interval, the efficiencies whose
+deviance ``n_eff ln(RSS(eff) / RSS_min)`` (``n_eff`` the samples over the residual's
+autocorrelation time) is under ``CHI2_95``. An interval that reaches 1 says the trip cannot
+tell a plausible efficiency from a lossless one.
 """
 
 from __future__ import annotations
@@ -15,12 +20,21 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from orange_plan.errors import InputError
 
 REMOVED = ("inertia", "regen")
 """Terms taken out of the scenario before diagnosis."""
 TRIPS = "tum_bmw_i3/Trip*.csv.gz"
 """The trips, under the data folder."""
+EFFICIENCY_GRID = np.round(np.arange(0.05, 1.0001, 0.025), 3)
+"""Efficiencies the profile likelihood is evaluated at [-]."""
+CHI2_95 = 3.84
+"""95 % quantile of chi-square with one degree of freedom: the deviance bound of the
+efficiency's interval [-]."""
+PROFILE_ROUNDS = 3
+"""Gauss-Newton rounds of each fixed-efficiency refit (the clip moves with the force) [-]."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +50,10 @@ class RegenRow:
     inertia_holdout_rmse_W: float
     inertia_regen_holdout_rmse_W: float
     regen_gain_pct: float
+    regen_t: float
+    efficiency_low: float
+    efficiency_high: float
+    braking_share: float
     seconds: float
 
     def to_dict(self) -> dict:
@@ -74,11 +92,25 @@ def bmw_regen(data_dir: str | Path, scenario_path: str | Path,
         both = fit_design(d, [*inertia, pool["regen"]])
         eff = dict(zip(both.names, both.theta))["regen.regen_efficiency"]
         sd = dict(zip(both.names, both.sd))["regen.regen_efficiency"]
+        low, high = efficiency_interval(d, inertia, pool["regen"], both)
         found = [f.term for f in result.findings]
         rows.append(RegenRow(
             trip=str(rec.source), samples=d.n, found=found, regen_named="regen" in found,
             regen_efficiency=float(eff), regen_efficiency_sd=float(sd),
             inertia_holdout_rmse_W=alone.cv_rmse_W, inertia_regen_holdout_rmse_W=both.cv_rmse_W,
             regen_gain_pct=100.0 * (1.0 - both.cv_rmse_W / alone.cv_rmse_W),
-            seconds=seconds))
+            regen_t=max((t.t_max for t in result.trials if t.id == "regen"), default=0.0),
+            efficiency_low=low, efficiency_high=high,
+            braking_share=float(np.mean(d.y < 0)), seconds=seconds))
     return rows
+
+
+def efficiency_interval(d, chosen: list, regen, fit) -> tuple[float, float]:
+    """The 95 % profile-likelihood interval of the efficiency on ``EFFICIENCY_GRID``
+    (``identify.diagnosis.fitting.efficiency_profile``): its lowest and highest efficiency
+    under ``CHI2_95``."""
+    from orange_plan.identify.diagnosis.fitting import efficiency_profile
+
+    deviance = efficiency_profile(d, chosen, regen, fit, EFFICIENCY_GRID, PROFILE_ROUNDS)
+    inside = EFFICIENCY_GRID[deviance <= CHI2_95]
+    return float(inside.min()), float(inside.max())

@@ -83,12 +83,14 @@ def _real_trips(data_dir: Path, as_json: bool) -> None:
         print_json({"rows": [r.to_dict() for r in rows]})
         return
     table = Table(title="BMW i3 trips, scenario without inertia and regen", header_style="bold")
-    for col in ("trip", "found", "regen efficiency", "held-out RMSE [W] inertia / + regen",
-                "gain", "seconds"):
+    for col in ("trip", "found", "regen t", "regen efficiency", "95 % interval",
+                "braking samples", "held-out RMSE [W] inertia / + regen", "gain", "seconds"):
         table.add_column(col)
     for r in rows:
-        table.add_row(r.trip, ",".join(r.found) or "-",
+        table.add_row(r.trip, ",".join(r.found) or "-", f"{r.regen_t:.1f}",
                       f"{r.regen_efficiency:.2f} +- {r.regen_efficiency_sd:.2f}",
+                      f"{r.efficiency_low:.2f}-{r.efficiency_high:.2f}",
+                      f"{100 * r.braking_share:.0f} %",
                       f"{r.inertia_holdout_rmse_W:.0f} / {r.inertia_regen_holdout_rmse_W:.0f}",
                       f"{r.regen_gain_pct:.1f} %", f"{r.seconds:.1f}")
     out.print(table)

@@ -1,7 +1,7 @@
 """Calibration: fit the model's lumped coefficients theta (with covariance) to recordings.
 
 Battery power is linear in theta apart from the no-recovery clip ``max(0, F)`` and the
-regen product (DESIGN.md). The fit is a Gauss-Newton / maximum-a-posteriori least squares:
+regen product. The fit is a Gauss-Newton / maximum-a-posteriori least squares:
 
     minimise  sum_i (P_i - P(state_i; theta))^2 / s2  +  sum_k ((theta_k - theta0_k) / sd0_k)^2
 
@@ -63,7 +63,7 @@ the upper semi-variance of the held-out relative errors, less the part the coeff
 uncertainty explains. Upper, because a reserve guards against runs drawing *more* than
 predicted and energy ratios are skewed that way (r >= -1, unbounded above): on the real
 data the plain variance gave reserves exceeded in 6 of 44 Husky and 2 of 16 BMW held-out
-runs at p = 0.9 (README "Reserve"). For a symmetric error both estimate the same variance.
+runs at p = 0.9 (docs/benchmarks/calibration.md). For a symmetric error both estimate the same variance.
 With one recording there is nothing run-to-run to measure and the scenario's
 ``discrepancy_rel_sd`` (its a priori default) is kept.
 """
@@ -77,6 +77,10 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from orange_plan.errors import InputError
+from orange_plan.identify.autocorrelation import (  # noqa: F401 - public here too
+    autoregressive_inflation,
+    inflation_factor,
+)
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.physics.state import MotionState
@@ -487,7 +491,7 @@ PINNED_SD_RATIO = 0.8
 fraction of the prior sd: the data then carry at least 1/0.8^2 - 1 = 0.56 times the prior's
 information [-]. (0.5, i.e. 3 times, held the ancillary draw of both real data sets in
 ``bench calibration`` at its prior, 29 +- 16 W against 21 +- 21 W on the Husky, and made
-the held-out energy errors slightly worse: README.)"""
+the held-out energy errors slightly worse: docs/benchmarks/calibration.md.)"""
 MIN_EVIDENCE_SIGMA = 2.0
 """Evidence threshold in sd (a two-sided 95 % test) [-]: a no-prior coefficient is pinned
 only when its fitted value is this far from its a priori value (the effect is there at all);
@@ -603,94 +607,6 @@ def unphysical(theta: dict) -> tuple[str, ...]:
     lower, upper = physical_bounds(names)
     values = np.array([theta[n] for n in names], dtype=float)
     return tuple(n for n, bad in zip(names, (values < lower) | (values > upper)) if bad)
-
-
-def inflation_factor(resid: np.ndarray, samples: Samples, block_s: float) -> float:
-    """Integrated autocorrelation time of residuals in samples, by batch means (>= 1) [-].
-
-    ``tau = B var(mean of each batch of B samples) / var(residuals)``, batches of about
-    ``block_s`` seconds within each recording; 1 for white residuals.
-    """
-    var = float(np.var(resid))
-    dt = samples.dt_s[samples.dt_s > 0]
-    if var <= 0 or dt.size == 0:
-        return 1.0
-    b = int(max(1, min(round(block_s / float(np.median(dt))), resid.size // 20)))
-    if b <= 1:
-        return 1.0
-    batches = _batch_means(resid, samples, b)
-    means = np.concatenate(batches) if batches else np.zeros(0)
-    if means.size < 5:
-        return 1.0
-    return max(1.0, b * float(np.var(means)) / var)
-
-
-AR_BIN_S = 1.0
-"""Bin of the means an autoregressive inflation is fitted to [s]: sensor noise and lag
-live within a second, disturbances (gusts, a controller, traffic) over tens of seconds."""
-AR_MAX_ORDER = 20
-"""Largest order of that autoregression [bins]."""
-AR_MIN_BINS = 300
-"""Fewest bins for an autoregressive inflation; shorter runs use batch means [-]."""
-AR_MIN_DISTANCE_TO_UNIT_ROOT = 1e-3
-"""``1 - sum(phi)`` is held at least this far from 0: a residual that wanders like a random
-walk has an unbounded long-run variance, and a huge finite one says the same [-]."""
-
-
-def autoregressive_inflation(resid: np.ndarray, samples: Samples,
-                             fallback_block_s: float) -> float:
-    """Integrated autocorrelation time of residuals in samples, from an autoregression of
-    their 1 s means (>= 1) [-].
-
-    ``tau = m S(0) / var(residuals)``: ``m`` samples per bin, ``S(0) = s_e^2 / (1 -
-    sum(phi))^2`` the long-run variance of the bin means under their AR(p) model (Yule-Walker
-    on autocovariances pooled over the recordings, p <= ``AR_MAX_ORDER`` by BIC). Batch means
-    (``inflation_factor``) rest on about twenty batch means of a 30-minute run; after a fit
-    that picked a change time to remove the run's slowest wander, one of them goes with it
-    and the estimate falls by up to two thirds. The autoregression reads the same long-run
-    variance from every lag of 1800 bins. Runs with fewer than ``AR_MIN_BINS`` bins fall back
-    to batch means of ``fallback_block_s``.
-    """
-    from scipy.linalg import solve_toeplitz
-
-    var = float(np.var(resid))
-    dt = samples.dt_s[samples.dt_s > 0]
-    if var <= 0 or dt.size == 0:
-        return 1.0
-    m = int(max(1, round(AR_BIN_S / float(np.median(dt)))))
-    series = _batch_means(resid, samples, m)
-    n = sum(s.size for s in series)
-    if n < AR_MIN_BINS:
-        return inflation_factor(resid, samples, fallback_block_s)
-    mean = float(np.mean(np.concatenate(series)))
-    centred = [s - mean for s in series]
-    acov = np.array([sum(float(c[: c.size - j] @ c[j:]) for c in centred if c.size > j) / n
-                     for j in range(AR_MAX_ORDER + 1)])
-    if acov[0] <= 0:
-        return 1.0
-    best = (np.log(acov[0]) * n, acov[0], 0.0)  # (BIC, innovation variance, sum of phi)
-    for p in range(1, AR_MAX_ORDER + 1):
-        phi = solve_toeplitz(acov[:p], acov[1: p + 1])
-        s2 = float(acov[0] - phi @ acov[1: p + 1])
-        if s2 <= 0:
-            break
-        bic = n * np.log(s2) + p * np.log(n)
-        if bic < best[0]:
-            best = (bic, s2, float(np.sum(phi)))
-    _, s2, phi_sum = best
-    long_run = s2 / max(1.0 - phi_sum, AR_MIN_DISTANCE_TO_UNIT_ROOT) ** 2
-    return max(1.0, m * long_run / var)
-
-
-def _batch_means(resid: np.ndarray, samples: Samples, b: int) -> list[np.ndarray]:
-    """Means of consecutive batches of ``b`` samples within each recording."""
-    out = []
-    for rec in np.unique(samples.block[:, 0]):
-        r = resid[samples.block[:, 0] == rec]
-        k = r.size // b
-        if k:
-            out.append(r[: k * b].reshape(k, b).mean(axis=1))
-    return out
 
 
 def surface_crr(model: EnergyModel, state: MotionState, scenario,

@@ -14,11 +14,25 @@ from orange_plan.errors import InputError
 from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.state import CHANNELS, MotionState
 from orange_plan.physics.wind import wind_vector_mps
-from orange_plan.telemetry.derive import gap_free_pieces, position_heading_rad, smooth
+from orange_plan.telemetry.derive import (
+    STILL_SPEED_MPS,
+    gap_free_pieces,
+    position_heading_rad,
+    smooth,
+    smooth_pieces,
+    window_samples,
+)
 from orange_plan.telemetry.recording import Recording, cumulative_J
 
 GRADE_WINDOW_M = 20.0
 """Distance window of the moving average on elevation before taking the grade [m]."""
+HEADING_MIN_M = 2.0
+"""Path the direction of travel is taken over, at least [m]: positions carry noise of tenths
+of a metre (GNSS), and a heading differenced over the 0.1 m a boat covers in 0.1 s swings by
+tens of degrees. The drag under a wind or a water current depends on it: a noisy heading
+under-reads the current's share (its cosine averages below 1), and the residual left follows
+the heading to the current over the run's legs, which slow terms of time took up (a survey
+boat's drift came with a false hvac or a false current)."""
 WHEELS_UP_COLUMN = "wheels_up"
 """Optional recording column: true where the robot runs with its wheels in the air."""
 DERIVED_CHANNELS = {"elapsed_s": lambda recording: recording.t_s - recording.t_s[0]}
@@ -61,7 +75,10 @@ def recording_state(recording: Recording, world=None, sensor_rate_Hz: float = 0.
     Notes
     -----
     * Grade: ``z_m`` resampled on distance travelled (trapezoid of ``v_mps``), moving
-      average over ``grade_window_m``, differentiated; ``sin_t = s/sqrt(1+s^2)``. No
+      average over ``grade_window_m``, differentiated to a slope ``s = dz / ds``; ``sin_t = s``
+      (clipped to [-1, 1]), ``cos_t = sqrt(1 - s^2)``. So the grade's power ``m g sin_t v``
+      is the rate of climb's ``m g dz/dt``, whether ``v_mps`` runs along the path (wheels, a
+      speedometer, the simulator) or is horizontal (positions, a GNSS ground speed). No
       ``z_m``: flat.
     * Direction: heading of positions (held while standing); no positions: (1, 0).
     * Wind: ``wind_mps``/``wind_from_deg`` columns (meteorological: docs/guide/range.md), else the
@@ -150,6 +167,12 @@ def distance_along_m(recording: Recording, speed_mps=None) -> np.ndarray:
 
 
 def _grade(recording: Recording, speed: np.ndarray, window_m: float):
+    """(cos_t, sin_t) of the recording's grade (``recording_state``'s notes): ``sin_t`` is the
+    slope of ``z_m`` against the distance the speed integrates to, so that ``sin_t v`` is
+    ``dz/dt``. Read as a tangent (``s / sqrt(1 + s^2)``), the slope of a speed along the path
+    came out ``1/sqrt(1 + s^2)`` short (3 % at a 25 % grade): the fitted grade coefficient
+    rose to make up the average and left a residual cubic in the grade, which an in-battery
+    loss ``k P^2`` took up."""
     n = len(speed)
     if not recording.has("z_m"):
         return np.ones(n), np.zeros(n)
@@ -165,16 +188,33 @@ def _grade(recording: Recording, speed: np.ndarray, window_m: float):
     window = max(3, round(window_m / step_m))
     z_smooth = smooth(z_grid, window + 1 - window % 2)
     slope = np.interp(s, grid, np.gradient(z_smooth, step_m))
-    hyp = np.sqrt(1.0 + slope**2)
-    return 1.0 / hyp, slope / hyp
+    sin_t = np.clip(slope, -1.0, 1.0)
+    return np.sqrt(1.0 - sin_t**2), sin_t
 
 
 def _direction(frame: pd.DataFrame, t, pieces, speed):
+    """(dir_x, dir_y): the heading of the positions, smoothed over at least
+    ``HEADING_MIN_M`` of path at the median moving speed (a fast robot's heading as it was)."""
     if "x_m" in frame.columns and "y_m" in frame.columns:
-        heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces, speed)
+        x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
+        window = _heading_window(t, speed)
+        if window > window_samples(t):
+            x, y = smooth_pieces(x, window, pieces), smooth_pieces(y, window, pieces)
+        heading = position_heading_rad(x, y, t, pieces, speed)
         return np.cos(heading), np.sin(heading)
     n = len(frame)
     return np.ones(n), np.zeros(n)
+
+
+def _heading_window(t, speed) -> int:
+    """Samples (odd) that cover ``HEADING_MIN_M`` at the median moving speed; 1 at rest."""
+    moving = np.abs(np.asarray(speed, float))
+    moving = moving[moving > STILL_SPEED_MPS]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    if not moving.size or dt <= 0:
+        return 1
+    n = round(HEADING_MIN_M / (float(np.median(moving)) * dt))
+    return min(max(n, 1), max(1, len(t) // 4)) | 1
 
 
 def _wind(frame: pd.DataFrame, conditions: Conditions | None, n: int):

@@ -342,3 +342,29 @@ def _start_value(values: dict, owner: str, name: str) -> float:
         return values["rolling_kg"] + values.get(f"{owner}.delta_{name}", 0.0) \
             if surface else values["rolling_kg"]
     return values[f"{owner}.{name}"]
+
+
+def efficiency_profile(d: Design, chosen: list[Candidate], regen: Candidate, fit: Fit,
+                       grid, rounds: int = 3) -> np.ndarray:
+    """The deviance of each regeneration efficiency of ``grid``: ``chosen`` and ``regen``
+    inside the model (``_absorb``, from ``fit``, their joint fit), every other coefficient
+    refitted with the efficiency held (``rounds`` Gauss-Newton rounds: the clip moves with the
+    force), ``n_eff ln(RSS(eff) / RSS_min)`` with ``n_eff = n / tau`` of ``fit``. Where it
+    stays under a chi-square quantile (3.84: 95 %) is what the recording allows; a profile
+    flat up to the bound of 1 says it cannot tell a plausible efficiency from a lossless
+    one [-]."""
+    inside = _absorb(d, [*chosen, regen], fit).design
+    at = inside.base.names.index("regen_efficiency")
+    rss = []
+    for eff in np.asarray(grid, float):
+        lower, upper = inside.lower.copy(), inside.upper.copy()
+        lower[at], upper[at] = eff - 1e-9, eff + 1e-9
+        model = inside.base.with_theta({"regen_efficiency": float(eff)})
+        for _ in range(rounds):
+            held = replace(inside, base=model, lower=lower, upper=upper, cache={},
+                           columns=inside.aligned(model.power_jacobian(inside.state)))
+            fixed = fit_design(held, [])
+            model = model.with_theta(dict(zip(model.names, fixed.theta)))
+        rss.append(fixed.rmse_W ** 2)
+    rss = np.asarray(rss)
+    return d.n / fit.tau * np.log(rss / rss.min())
