@@ -92,3 +92,14 @@ def test_no_import_circles():
     circles = [[m for m, lab in zip(names, label) if lab == k]
                for k in np.flatnonzero(np.bincount(label) > 1)]
     assert not circles, f"modules importing each other in a circle: {circles}"
+
+
+MAX_MODULE_LINES = 700
+
+
+def test_every_module_is_short_enough_to_read():
+    """No module of the package grows past 700 lines: a longer one holds more than one idea
+    (split it by stage or by idea, as identify/diagnosis/ and planning/ do)."""
+    too_long = {str(p.relative_to(REPO)): n for p in PACKAGE.rglob("*.py")
+                if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES}
+    assert not too_long, f"modules over {MAX_MODULE_LINES} lines: {too_long}"
