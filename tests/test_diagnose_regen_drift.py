@@ -240,25 +240,3 @@ def test_a_drift_shape_without_the_drift_term_is_refused(tmp_path):
                     + '\n[model]\ndrift_shape = "linear"\n')
     with pytest.raises(InputError, match=r"needs 'drift' in model\.terms"):
         load_scenario(path)
-
-
-def test_a_slow_robots_heading_is_taken_over_metres_of_path_not_one_noisy_sample():
-    """A boat at 1 m/s logging positions with 0.4 m of noise at 10 Hz: differenced over half
-    a second of path, its heading swung by tens of degrees, the current's share of the drag
-    averaged low, and the residual it left followed the heading to the current over the
-    run's legs (a marine drift came with a false hvac or current). Over ``HEADING_MIN_M`` of
-    path the heading is within a few degrees."""
-    import pandas as pd
-
-    from orange_plan.telemetry.recording import recording_from_frame
-    from orange_plan.telemetry.state import recording_state
-
-    rng = np.random.default_rng(3)
-    t = np.arange(0.0, 600.0, 0.1)
-    frame = pd.DataFrame({"t_s": t, "power_W": 1.0, "v_mps": 1.0,
-                          "x_m": t + rng.normal(0, 0.4, t.size),
-                          "y_m": rng.normal(0, 0.4, t.size)})
-    state = recording_state(recording_from_frame(frame))
-    error_deg = np.degrees(np.arctan2(np.asarray(state.dir_y), np.asarray(state.dir_x)))
-    assert float(np.sqrt(np.mean(error_deg**2))) < 10.0
-    assert float(np.mean(np.asarray(state.dir_x))) > 0.98

@@ -14,25 +14,11 @@ from orange_plan.errors import InputError
 from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.state import CHANNELS, MotionState
 from orange_plan.physics.wind import wind_vector_mps
-from orange_plan.telemetry.derive import (
-    STILL_SPEED_MPS,
-    gap_free_pieces,
-    position_heading_rad,
-    smooth,
-    smooth_pieces,
-    window_samples,
-)
+from orange_plan.telemetry.derive import gap_free_pieces, position_heading_rad, smooth
 from orange_plan.telemetry.recording import Recording, cumulative_J
 
 GRADE_WINDOW_M = 20.0
 """Distance window of the moving average on elevation before taking the grade [m]."""
-HEADING_MIN_M = 2.0
-"""Path the direction of travel is taken over, at least [m]: positions carry noise of tenths
-of a metre (GNSS), and a heading differenced over the 0.1 m a boat covers in 0.1 s swings by
-tens of degrees. The drag under a wind or a water current depends on it: a noisy heading
-under-reads the current's share (its cosine averages below 1), and the residual left follows
-the heading to the current over the run's legs, which slow terms of time took up (a survey
-boat's drift came with a false hvac or a false current)."""
 WHEELS_UP_COLUMN = "wheels_up"
 """Optional recording column: true where the robot runs with its wheels in the air."""
 DERIVED_CHANNELS = {"elapsed_s": lambda recording: recording.t_s - recording.t_s[0]}
@@ -193,28 +179,11 @@ def _grade(recording: Recording, speed: np.ndarray, window_m: float):
 
 
 def _direction(frame: pd.DataFrame, t, pieces, speed):
-    """(dir_x, dir_y): the heading of the positions, smoothed over at least
-    ``HEADING_MIN_M`` of path at the median moving speed (a fast robot's heading as it was)."""
     if "x_m" in frame.columns and "y_m" in frame.columns:
-        x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
-        window = _heading_window(t, speed)
-        if window > window_samples(t):
-            x, y = smooth_pieces(x, window, pieces), smooth_pieces(y, window, pieces)
-        heading = position_heading_rad(x, y, t, pieces, speed)
+        heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces, speed)
         return np.cos(heading), np.sin(heading)
     n = len(frame)
     return np.ones(n), np.zeros(n)
-
-
-def _heading_window(t, speed) -> int:
-    """Samples (odd) that cover ``HEADING_MIN_M`` at the median moving speed; 1 at rest."""
-    moving = np.abs(np.asarray(speed, float))
-    moving = moving[moving > STILL_SPEED_MPS]
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    if not moving.size or dt <= 0:
-        return 1
-    n = round(HEADING_MIN_M / (float(np.median(moving)) * dt))
-    return min(max(n, 1), max(1, len(t) // 4)) | 1
 
 
 def _wind(frame: pd.DataFrame, conditions: Conditions | None, n: int):
