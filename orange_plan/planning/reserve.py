@@ -51,6 +51,11 @@ estimator's own spread when wider): about five times the worst seen. The whole a
 discrepancy (58 % of the return) left 6-9 % of the battery unused at home."""
 
 
+def normal_quantiles(p) -> np.ndarray:
+    """Quantiles of the standard normal law at probabilities ``p`` (array-like, 0..1)."""
+    return ndtri(np.asarray(p, float))
+
+
 def closed_loop_return_spread(model) -> float:
     """The least relative spread [-] a closed loop takes for its way home:
     ``RETURN_SPREAD_FLOOR`` of ``model``'s a-priori run-to-run discrepancy. The session's

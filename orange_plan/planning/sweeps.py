@@ -49,7 +49,7 @@ from orange_plan.planning.lawnmower import (
     straight_route,
 )
 from orange_plan.planning.paths import cut_path
-from orange_plan.planning.reserve import reserve_from
+from orange_plan.planning.reserve import normal_quantiles, reserve_from
 
 RESCORE = 4
 """Best straight-joined sweeps joined round obstacles and scored again."""
@@ -413,9 +413,7 @@ def budget_factors(run_sd: float) -> np.ndarray:
     model would with ``1 / k`` of the energy: the rule measures what it spends and learns
     ``k`` on the way out. 1 alone when ``run_sd`` is 0.
     """
-    from scipy.special import ndtri
-
-    k = 1.0 + max(float(run_sd), 0.0) * ndtri(np.asarray(BUDGET_QUANTILES, float))
+    k = 1.0 + max(float(run_sd), 0.0) * normal_quantiles(BUDGET_QUANTILES)
     return np.unique(1.0 / np.maximum(k, 0.5))
 
 
