@@ -348,7 +348,7 @@ def _spread(ctx, setup, home, xy, e_left, limit, max_m, run_sd=None) -> np.ndarr
 
 
 @pytest.mark.timeout(600)
-@settings(max_examples=5, deadline=None,
+@settings(max_examples=5, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(spec=obstacle_worlds())
 def test_the_plan_senses_at_least_every_sweep_whole_map_or_cell_by_cell(
