@@ -85,6 +85,12 @@ FORMATS = {"qgc": (".plan",), "mavlink": (".waypoints", ".txt", ".mission")}
 """Export formats and the file name endings the ground stations open."""
 
 
+def check_firmware(firmware: str, option: str = "firmware") -> None:
+    """Raise InputError naming ``option`` unless ``firmware`` is one of ``FIRMWARE_TYPES``."""
+    if firmware not in FIRMWARE_TYPES:
+        raise InputError(f"{option} {firmware!r} must be one of {', '.join(FIRMWARE_TYPES)}")
+
+
 # --- local ENU <-> WGS84 --------------------------------------------------------------------
 
 
@@ -287,8 +293,7 @@ def build_mission(world, kind: str, xy_m, speed_mps, altitude_m: float | None = 
         raise InputError(f"{world.map.path}: the map has no 'origin' (the WGS84 point at "
                          "x = y = 0), so the plan cannot be placed in latitude/longitude; add "
                          '"origin": {"lat_deg": ..., "lon_deg": ..., "alt_m": ...} to the map')
-    if firmware not in FIRMWARE_TYPES:
-        raise InputError(f"firmware {firmware!r} must be one of {', '.join(FIRMWARE_TYPES)}")
+    check_firmware(firmware)
     alt = _altitude(kind, altitude_m)
     xy = np.asarray(xy_m, float).reshape(-1, 2)
     v = np.asarray(speed_mps, float)

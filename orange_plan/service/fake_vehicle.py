@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from orange_plan.errors import InputError, check_range
-from orange_plan.export.autopilot import build_mission, enu_to_geodetic
+from orange_plan.export.autopilot import build_mission, check_firmware, enu_to_geodetic
 from orange_plan.service.mavlink_link import (
     degE7,
     item_from_message,
@@ -82,8 +82,7 @@ class VehicleOptions:
         check_range(self.voltage_V, "--voltage-V", high=1000.0)
         check_range(self.takeoff_after_s, "--takeoff-after-s", high=3600.0, low_open=False)
         check_range(self.linger_s, "--linger-s", high=3600.0, low_open=False)
-        if self.firmware not in ("px4", "ardupilot"):
-            raise InputError(f"--firmware {self.firmware!r} must be px4 or ardupilot")
+        check_firmware(self.firmware, "--firmware")
 
 
 @dataclass

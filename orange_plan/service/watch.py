@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from orange_plan.errors import InputError, check_range
-from orange_plan.export.autopilot import MAX_ALTITUDE_M
+from orange_plan.export.autopilot import MAX_ALTITUDE_M, check_firmware
 from orange_plan.service.mavlink_link import text_bytes
 from orange_plan.service.watch_link import (
     DRAIN_S,
@@ -118,8 +118,7 @@ class WatchOptions:
     def __post_init__(self):
         if not (isinstance(self.rtl_attempts, int) and 1 <= self.rtl_attempts <= 20):
             raise InputError(f"--rtl-attempts = {self.rtl_attempts!r} must be 1 to 20")
-        if self.firmware not in ("px4", "ardupilot"):
-            raise InputError(f"--firmware {self.firmware!r} must be px4 or ardupilot")
+        check_firmware(self.firmware, "--firmware")
         check_range(self.altitude_m, "--altitude-m", high=MAX_ALTITUDE_M)
         check_range(self.ack_timeout_s, "--ack-timeout-s", high=3600.0)
         check_range(self.silent_s, "--silent-s", high=3600.0)
