@@ -15,7 +15,8 @@ from scipy.optimize import lsq_linear
 from scipy.signal import lfilter
 
 from orange_plan.context import load_context
-from orange_plan.identify.diagnose import _solve, diagnose
+from orange_plan.identify.diagnose import diagnose
+from orange_plan.identify.diagnosis.fitting import _solve
 from orange_plan.identify.locate import quarters
 from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.sim.route import Route

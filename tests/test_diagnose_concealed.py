@@ -231,7 +231,7 @@ def test_bounded_solve_leaves_an_all_zero_column_at_zero():
     once became a coefficient of 1e+280."""
     import numpy as np
 
-    from orange_plan.identify.diagnose import _solve
+    from orange_plan.identify.diagnosis.fitting import _solve
 
     rng = np.random.default_rng(0)
     x = np.c_[rng.normal(size=(200, 2)), np.zeros(200)]
@@ -265,7 +265,7 @@ def test_covariance_scales_columns_and_gives_a_zero_column_no_variance():
     variance from rounding."""
     import numpy as np
 
-    from orange_plan.identify.diagnose import _covariance
+    from orange_plan.identify.diagnosis.fitting import _covariance
 
     jac = np.zeros((4, 3))
     jac[:, 0] = [1.0, 1.0, 1.0, 1.0]
