@@ -343,8 +343,7 @@ def _spread(ctx, setup, home, xy, e_left, limit, max_m, run_sd=None) -> np.ndarr
     run_sd = ctx.model.discrepancy_rel_sd if run_sd is None else run_sd
     needs = route_needs(ctx, reach.fast, home, xy, limit, score_step_m(ctx), max_m,
                         reach.reserve)
-    return np.array([needs.closed_m2_at(setup.grid, e_left * f, r)
-                     for f in budget_factors(run_sd)])
+    return np.array(needs.closed_m2_over(setup.grid, e_left * budget_factors(run_sd), r))
 
 
 @pytest.mark.timeout(600)

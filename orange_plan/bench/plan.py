@@ -478,12 +478,13 @@ def closed_loop_route(plan, homing: _HomingKit):
 def budget_curves(ctx, plans: dict, homing: _HomingKit) -> dict:
     """Coverage against budget: for each method's route, the area sensed before the
     closed-loop rule turns it home with ``share`` of the usable energy, on the planning model
-    (``planning.sweeps.score_route``) [m^2] -> {method: [[share, m2], ...]}. An order that
+    (``planning.sweeps.route_needs``) [m^2] -> {method: [[share, m2], ...]}. An order that
     covers what is near home first keeps more when the mission must turn home early."""
-    from orange_plan.planning.sweeps import score_route, score_step_m
+    from orange_plan.planning.sweeps import route_needs, score_step_m
 
     usable = ctx.scenario.battery.usable_J
     limit = ctx.scenario.mission.time_limit_s
+    r = ctx.scenario.mission.sensor_radius_m
     routes = {}
     if "lawnmower" in plans:
         routes["lawnmower"] = plans["lawnmower"][0].xy_m
@@ -492,11 +493,11 @@ def budget_curves(ctx, plans: dict, homing: _HomingKit) -> dict:
             routes[method] = closed_loop_route(plans[method], homing)[0]
     curves = {}
     for method, route in routes.items():
-        curves[method] = [
-            [share, score_route(ctx, homing.cost, homing.home, homing.grid, route,
-                                share * usable, math.inf if limit is None else limit,
-                                score_step_m(ctx)).closed_m2]
-            for share in BUDGET_SHARES]
+        # what each point of the route needs does not depend on the budget: found once
+        needs = route_needs(ctx, homing.cost, homing.home, route,
+                            math.inf if limit is None else limit, score_step_m(ctx))
+        areas = needs.closed_m2_over(homing.grid, [share * usable for share in BUDGET_SHARES], r)
+        curves[method] = [[share, m2] for share, m2 in zip(BUDGET_SHARES, areas)]
     return curves
 
 

@@ -171,7 +171,7 @@ def score_route(ctx, cost, home, grid, xy, e_left_J: float, time_left_s: float,
 class RouteNeeds:
     """What each point of a densely cut route needs under the two homing rules, whatever
     the budget: the turn points for any energy left follow from it (``score``,
-    ``closed_m2_at``).
+    ``closed_m2_over``).
 
     Attributes
     ----------
@@ -190,27 +190,26 @@ class RouteNeeds:
     used_J: np.ndarray
     length_m: float
 
+    def _turn(self, needed_J: np.ndarray, e_left_J: float) -> int:
+        """Index of the dense point where a rule needing ``needed_J`` turns home [-]."""
+        return _last_ok(~((needed_J > e_left_J) | self.late))
+
     def closed_turn_m(self, e_left_J: float) -> float:
         """Arclength of the closed-loop turn with ``e_left_J`` to spend [m]."""
-        return float(self.s_m[_last_ok(~((self.closed_J > e_left_J) | self.late))])
-
-    def closed_m2_at(self, grid, e_left_J: float, r: float) -> float:
-        """Area sensed before the closed-loop rule turns home with ``e_left_J`` [m^2]."""
-        return _sensed_m2(grid, cut_path(self.full_xy_m, self.closed_turn_m(e_left_J)), r)
+        return float(self.s_m[self._turn(self.closed_J, e_left_J)])
 
     def closed_m2_over(self, grid, budgets_J, r: float) -> tuple[float, ...]:
-        """``closed_m2_at`` for each budget, the area counted once per distinct turn point
-        (a time limit or a route sensed whole turns them all at one point) [m^2]."""
-        area: dict[float, float] = {}
-        for s in (self.closed_turn_m(b) for b in budgets_J):
-            if s not in area:
-                area[s] = _sensed_m2(grid, cut_path(self.full_xy_m, s), r)
-        return tuple(area[self.closed_turn_m(b)] for b in budgets_J)
+        """Area sensed before the closed-loop rule turns home, for each budget [m^2]; the
+        area is counted once per distinct turn point (a time limit or a route sensed whole
+        turns them all at one point)."""
+        turns = [self.closed_turn_m(b) for b in budgets_J]
+        area = {s: _sensed_m2(grid, cut_path(self.full_xy_m, s), r) for s in set(turns)}
+        return tuple(area[s] for s in turns)
 
     def score(self, grid, e_left_J: float, r: float) -> RouteScore:
         """Both turn points and the area sensed up to each with ``e_left_J`` to spend."""
-        k_closed = _last_ok(~((self.closed_J > e_left_J) | self.late))
-        k_open = _last_ok(~((self.open_J > e_left_J) | self.late))
+        k_closed = self._turn(self.closed_J, e_left_J)
+        k_open = self._turn(self.open_J, e_left_J)
         s = self.s_m
         # the area from the route's own vertices (the dense cut only places the turn)
         closed_m2 = _sensed_m2(grid, cut_path(self.full_xy_m, s[k_closed]), r)
