@@ -48,7 +48,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
     """
     from orange_plan.planning.homepaths import HomePaths
     from orange_plan.planning.lawnmower import Detours, SweepLanes, plan_lawnmower
-    from orange_plan.planning.sweeps import best_sweep, budget_factors, score_route, score_step_m
+    from orange_plan.planning.sweeps import best_sweep, score_route, score_step_m
 
     reach = setup.reach
     home_xy = np.asarray(reach.home_xy_m, float)
@@ -97,8 +97,7 @@ def sweep_tour(ctx, setup: TourSetup, start: StartState, *, t0: float,
                "sweep_length_m": sweep.score.length_m,
                # what it is expected to sense if the run's energy is not the model's
                "closed_loop_spread_m2": [
-                   [float(f), float(m2)] for f, m2 in
-                   zip(budget_factors(ctx.model.discrepancy_rel_sd), sweep.spread_m2)]}
+                   [f, float(m2)] for f, m2 in zip(sweep.spread_factors, sweep.spread_m2)]}
     return replace(plan, summary=summary, continuation_xy_m=route_after(sweep.xy_m, cut_m))
 
 

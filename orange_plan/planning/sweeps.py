@@ -91,7 +91,8 @@ class Sweep:
     per_cell_angles : a cell sweep whose cells each have their own angle
     rivals : (pattern, closed_m2, open_m2) of every route joined and scored again
     spread_m2 : area sensed before the closed-loop turn at each budget of
-        ``budget_factors`` [m^2]
+        ``spread_factors`` [m^2]
+    spread_factors : the budgets of the spread, as factors of the energy left [-]
     """
 
     xy_m: np.ndarray
@@ -103,6 +104,7 @@ class Sweep:
     per_cell_angles: bool = False
     rivals: tuple = ()
     spread_m2: tuple = ()
+    spread_factors: tuple = ()
 
     @property
     def pattern(self) -> str:
@@ -372,15 +374,15 @@ def best_sweep(ctx, reach, home, grid, detours, baseline_xy=None, e_left_J: floa
                                          directions[:DECOMPOSITIONS], detours.segments_free):
             add(candidate)
     tried = len(straight)
-    budgets = e_left_J * budget_factors(ctx.model.discrepancy_rel_sd if run_sd is None
-                                        else run_sd)
+    factors = budget_factors(ctx.model.discrepancy_rel_sd if run_sd is None else run_sd)
+    budgets = e_left_J * factors
 
     def scored(xy, angle_deg, order, *cell) -> Sweep:
         needs = route_needs(ctx, cost, home, xy, time_left_s, step, max_length_m,
                             reach.reserve)
         spread = needs.closed_m2_over(grid, budgets, r)
         return Sweep(xy, angle_deg, order, needs.score(grid, e_left_J, r), tried, *cell,
-                     spread_m2=spread)
+                     spread_m2=spread, spread_factors=tuple(float(f) for f in factors))
 
     joined = []
     for candidate in _to_rescore(straight, rescore):
