@@ -246,3 +246,31 @@ def test_a_stretch_that_leaves_the_free_space_is_not_flown_home(monkeypatch):
     back = session.homeward_xy_m()
     way = session.way_home_xy_m()
     assert back.shape == way.shape and np.allclose(back, way)
+
+
+def test_the_look_ahead_is_the_most_any_cut_of_the_stretch_needs():
+    """The look-ahead weighs every cut of the next stretch: the stretch so far, the way home
+    from there and the reserve for both, beyond what the way home needs now; a crest inside
+    the stretch counts, a way home that shortens past it is not charged as if it did not."""
+    _, session = _closed_loop_session(batches=2)
+    home = session._return_home()
+    now = home.energy_J + home.reserve_J
+    ahead, _ = session._route_ahead()
+    n = len(session._stretch_cuts(ahead))
+    assert n == 8
+
+    def needs_of(profile):
+        lengths = [float(np.sum(np.hypot(*np.diff(p, axis=0).T)))
+                   for p in session._stretch_cuts(ahead)]
+        table = dict(zip(lengths, profile))
+        return lambda part, speeds: table[float(np.sum(np.hypot(*np.diff(part, axis=0).T)))]
+
+    crest = [now + 10.0 * k for k in (1, 2, 3, 9, 4, 3, 2, 1)]  # dearest half way
+    session._homeward_need_J = needs_of(crest)
+    assert session._lookahead_J(home) == pytest.approx(90.0)
+    downhill = [now - 5.0 * k for k in range(1, 9)]  # every cut cheaper than turning now
+    session._homeward_need_J = needs_of(downhill)
+    assert session._lookahead_J(home) == 0.0
+    blocked = [now + 1.0] * 7 + [math.inf]  # no way home from the stretch's end
+    session._homeward_need_J = needs_of(blocked)
+    assert session._lookahead_J(home) == math.inf

@@ -45,6 +45,9 @@ class Flown:
 
     ``dt`` is the sample interval [s] and ``e_avail`` the truth's usable energy [J]; ``add``
     appends a simulated segment's frame (its first ``n`` samples), ``outcome`` scores them.
+    A closed loop that turned home records what it predicted for the route home
+    (``return_predicted_J``, the online model's energy of it) and the reserve it kept for it
+    (``return_reserve_J``); that route is the last segment flown.
     """
 
     dt: float
@@ -54,6 +57,8 @@ class Flown:
     replans: int = 0
     returned_by_rule: bool = False
     note: str = ""
+    return_predicted_J: float = float("nan")
+    return_reserve_J: float = float("nan")
 
     @property
     def energy_drawn_J(self) -> float:
@@ -69,7 +74,8 @@ class Flown:
         """The flight's score: ``coverage_m2`` sensed until the battery ran out (or the end),
         ``energy_left_J``, ``stranded`` (out of energy, or ended farther than
         ``HOME_TOLERANCE_M`` from home), ``duration_s``, ``replans``, ``returned_early``,
-        ``note``."""
+        ``note``; for a closed loop that turned home also ``return_predicted_J``,
+        ``return_reserve_J`` and ``return_flown_J`` (the true energy of the route home)."""
         xy = np.vstack(self.xy)
         cum = np.cumsum(np.concatenate(self.power)) * self.dt
         empty = np.flatnonzero(cum > self.e_avail)
@@ -77,10 +83,15 @@ class Flown:
         away = float(np.hypot(*(xy[-1] - np.asarray(ctx.world.home_xy_m))))
         stranded = bool(empty.size) or away > HOME_TOLERANCE_M
         area = flown_footprint(ctx.world, xy[:end], ctx.scenario.mission.sensor_radius_m).area
-        return {"coverage_m2": float(area), "energy_left_J": float(self.e_avail - cum[-1]),
-                "stranded": stranded, "duration_s": float(len(xy) * self.dt),
-                "replans": self.replans, "returned_early": self.returned_by_rule,
-                "note": self.note}
+        out = {"coverage_m2": float(area), "energy_left_J": float(self.e_avail - cum[-1]),
+               "stranded": stranded, "duration_s": float(len(xy) * self.dt),
+               "replans": self.replans, "returned_early": self.returned_by_rule,
+               "note": self.note}
+        if np.isfinite(self.return_predicted_J):
+            out.update(return_predicted_J=float(self.return_predicted_J),
+                       return_reserve_J=float(self.return_reserve_J),
+                       return_flown_J=float(np.sum(self.power[-1]) * self.dt))
+        return out
 
 
 def simulate_route(ctx: Context, xy, speed, truth, seed, rate,

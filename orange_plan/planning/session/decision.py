@@ -100,8 +100,11 @@ class HomingState:
         estimator's window [J/m], or None while it cannot say
     tour_margin_J : smallest homing margin over the rest of the tour, online model [J]
     replan_margin_J : the margin the rest of the tour must keep [J]
-    lookahead_J : energy the robot draws before the next decision can reach it (the last
-        batch's) [J]: the return is decided while the margin still covers it
+    lookahead_J : what the robot needs, beyond the way home and its reserve now, before
+        the next decision can reach it (the most any point of the next stretch needs: the
+        stretch so far, the way home from there and the reserve for both; at the route's
+        end the last batch's energy) [J]: the return is decided while the margin still
+        covers it
     """
 
     position_xy_m: tuple[float, float]

@@ -28,8 +28,9 @@ from orange_plan.planning.session.intake import Intake, validated_batch
 from orange_plan.world.geomap import keep_out_polygon
 
 HOMEWARD_CUTS = 8
-"""Even cuts of the stretch ahead tried for the last piece of route flown before the way home
-(``MissionSession.homeward_xy_m``) [-]."""
+"""Even cuts of the stretch ahead: each is checked by the look-ahead of a closed loop's live
+check (``MissionSession._lookahead_J``), and the longest that fits is the last piece of route
+flown before the way home (``MissionSession.homeward_xy_m``) [-]."""
 
 
 class MissionSession:
@@ -273,18 +274,31 @@ class MissionSession:
 
     def _lookahead_J(self, home: Home) -> float:
         """Closed loop: what the next decision comes too late for [J]. The robot flies on
-        for about one more batch before it can hear the next decision: the online model's
-        energy of that stretch of the route ahead (``_route_ahead``), plus how much dearer
-        the way home is from its end; at the route's end, what the last batch drew. A hill
-        just ahead is thus paid for before it is climbed."""
+        for about one more batch before it can hear the next decision, along the stretch of
+        route the decision looks at (``_route_ahead``). At each of the stretch's cuts
+        (``_stretch_cuts``) it needs the stretch's energy so far, the way home from there and
+        the return reserve for both (``_homeward_need_J``); the look-ahead is the most any cut
+        needs beyond what the way home needs now (never below 0). A hill just ahead is thus
+        paid for before it is climbed, a hill top past which the way home is shorter is not
+        charged as if the robot had to come back down the same way, and a cut the end of the
+        stretch would hide (over a crest, round a lane end) is checked too. At the route's
+        end: what the last batch drew."""
         last = self._intake.last_batch_J
         ahead = self._route_ahead() if math.isfinite(home.energy_J) else None
         if ahead is None:
             return last
-        stretch = self._stretch_J(*ahead)
-        then = self._return_home(ahead[0][-1])
-        dearer = (then.energy_J + then.reserve_J) - (home.energy_J + home.reserve_J)
-        return float(stretch) + max(float(dearer), 0.0)
+        xy, speeds = ahead
+        worst = max(self._homeward_need_J(part, speeds) for part in self._stretch_cuts(xy))
+        return max(float(worst) - (home.energy_J + home.reserve_J), 0.0)
+
+    @staticmethod
+    def _stretch_cuts(xy) -> list[np.ndarray]:
+        """The stretch ``xy`` cut at ``HOMEWARD_CUTS`` even fractions of its length, shortest
+        first (pieces of fewer than two points left out) [m]."""
+        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        parts = (cut_path(xy, share * length)
+                 for share in np.arange(1, HOMEWARD_CUTS + 1) / HOMEWARD_CUTS)
+        return [part for part in parts if len(part) >= 2]
 
     def _route_ahead(self):
         """The stretch of the route the robot flies before the next decision can reach it:
@@ -327,13 +341,11 @@ class MissionSession:
         if ahead is None:
             return self.way_home_xy_m()
         xy, speeds = ahead
-        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
         spare = self.energy_available_J - self.energy_used_J
-        for share in np.arange(HOMEWARD_CUTS, 0, -1) / HOMEWARD_CUTS:
-            part = cut_path(xy, share * length)
+        for part in reversed(self._stretch_cuts(xy)):
             # the stretch starts at the reported position, off the route by the tracking
             # error: its join to the route must keep the map's clearance too
-            if len(part) < 2 or not self.ctx.world.segments_free(part[:-1], part[1:]).all():
+            if not self.ctx.world.segments_free(part[:-1], part[1:]).all():
                 continue
             if self._homeward_need_J(part, speeds) <= spare:
                 back = self._way_home_from(part[-1])
