@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from conftest import run_cli
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from orange_plan.context import load_context
@@ -328,12 +328,17 @@ def test_default_kind_per_term():
     assert all(KINDS[t][0] in ("ground", "aerial") for t in CONCEALABLE)
 
 
-@settings(max_examples=6, deadline=None, derandomize=True, database=None,
+@settings(max_examples=6, deadline=None, database=None,
           suppress_health_check=[HealthCheck.too_slow])
 @given(term=st.sampled_from([*CONCEALABLE, None]), seed=st.integers(0, 2**16))
+# a run mostly downhill: regeneration returns nearly all it draws (71.5 J net of 3.5 kJ drawn)
+@example(term="regen", seed=18146)
 def test_property_cases_are_physical_and_clean(term, seed):
     """Any seed: the recording passes the normal cleaning without a reported issue, true
-    energies are positive, soc falls, and the completed model accounts for the energy."""
+    energies are positive, soc falls, and the completed model accounts for the energy: its
+    error is measured against the energy that flowed through the battery either way (a run
+    whose regeneration returns nearly all it draws has a net energy near 0, so an error
+    relative to that net says nothing of the model)."""
     case = concealed_case([term] if term else [], seed, duration_s=180.0, rate_Hz=5.0)
     assert case.recording.issues == ()
     again = recording_from_frame(case.frame)
@@ -344,7 +349,9 @@ def test_property_cases_are_physical_and_clean(term, seed):
     assert 0 < soc[-1] < soc[0] <= 1
     if "regen" not in case.truth:  # only regeneration charges the battery
         assert np.all(np.diff(soc) <= 1e-12)
-    assert abs(e_done - e_rec) / e_rec * 100 < 2 * ENERGY_TOL_PCT
+    rec = case.recording
+    flowed = integrate_J(rec, np.abs(rec.frame["power_W"].to_numpy(float)))
+    assert abs(e_done - e_rec) / flowed * 100 < 2 * ENERGY_TOL_PCT
 
 
 def test_bench_concealed_reports_each_case():

@@ -49,7 +49,7 @@ def sized_worlds(draw):
 
 
 @pytest.mark.timeout(300)
-@settings(max_examples=12, deadline=None, derandomize=True, database=None,
+@settings(max_examples=6, deadline=None, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(spec=sized_worlds(), seed=st.integers(0, 1000), goals=st.integers(0, 10_000))
 def test_every_path_keeps_the_robot_radius_from_the_map(tmp_path_factory, spec, seed, goals):

@@ -68,6 +68,29 @@ def smooth_pieces(values: np.ndarray, window: int, pieces: list[slice]) -> np.nd
     return out
 
 
+def position_noise_m(x_m, y_m, pieces=None) -> float:
+    """Standard deviation of the white noise on recorded positions, estimated from the
+    positions themselves [m].
+
+    The second difference ``p[i+1] - 2 p[i] + p[i-1]`` of white noise of sd ``s`` has sd
+    ``sqrt(6) s``, while a smooth track contributes only its acceleration times the sample
+    interval squared (millimetres at a few hertz): so ``s`` is the second differences' robust
+    spread (1.4826 x their median absolute deviation, which turns and stops do not move)
+    over ``sqrt(6)``, pooled over x, y and the gap-free ``pieces``. 0 for fewer than three
+    samples in every piece.
+    """
+    x, y = np.asarray(x_m, float), np.asarray(y_m, float)
+    pieces = pieces or [slice(0, len(x))]
+    second = [np.diff(v[p], 2) for p in pieces for v in (x, y) if len(v[p]) >= 3]
+    if not second:
+        return 0.0
+    dd = np.concatenate(second)
+    dd = dd[np.isfinite(dd)]
+    if not dd.size:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(dd - np.median(dd))) / np.sqrt(6.0))
+
+
 def position_heading_rad(x_m, y_m, t_s, pieces=None, speed_mps=None,
                          still_mps: float = STILL_SPEED_MPS, window: int | None = None
                          ) -> np.ndarray:

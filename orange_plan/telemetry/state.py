@@ -14,11 +14,29 @@ from orange_plan.errors import InputError
 from orange_plan.physics.conditions import Conditions
 from orange_plan.physics.state import CHANNELS, MotionState
 from orange_plan.physics.wind import wind_vector_mps
-from orange_plan.telemetry.derive import gap_free_pieces, position_heading_rad, smooth
+from orange_plan.telemetry.derive import (
+    STILL_SPEED_MPS,
+    gap_free_pieces,
+    position_heading_rad,
+    position_noise_m,
+    smooth,
+    smooth_pieces,
+    window_samples,
+)
 from orange_plan.telemetry.recording import Recording, cumulative_J
 
 GRADE_WINDOW_M = 20.0
 """Distance window of the moving average on elevation before taking the grade [m]."""
+HEADING_NOISE_PATHS = 8.0
+"""The direction of travel is taken over at least this many times the positions' noise of
+path (``telemetry.derive.position_noise_m``) [-]. A heading differenced over less swings
+with the noise: over the 0.5 m a 1 m/s boat covers in half a second, GNSS noise of 0.3 m
+puts it tens of degrees off. The drag under a wind or a water current depends on it: a
+noisy heading under-reads the current's share (its cosine averages below 1), and the
+residual left follows the heading over the run's legs, where slow terms of time can take it
+up. A path longer than needed rounds off the turns instead (a ground robot's 5 cm of noise
+needs 0.4 m: no more than the usual half-second window), so the window follows the noise
+the recording shows."""
 WHEELS_UP_COLUMN = "wheels_up"
 """Optional recording column: true where the robot runs with its wheels in the air."""
 DERIVED_CHANNELS = {"elapsed_s": lambda recording: recording.t_s - recording.t_s[0]}
@@ -179,11 +197,29 @@ def _grade(recording: Recording, speed: np.ndarray, window_m: float):
 
 
 def _direction(frame: pd.DataFrame, t, pieces, speed):
+    """(dir_x, dir_y): the heading of the positions, smoothed over at least
+    ``HEADING_NOISE_PATHS`` times their noise of path at the median moving speed."""
     if "x_m" in frame.columns and "y_m" in frame.columns:
-        heading = position_heading_rad(frame["x_m"], frame["y_m"], t, pieces, speed)
+        x, y = frame["x_m"].to_numpy(float), frame["y_m"].to_numpy(float)
+        window = _heading_window(t, speed, HEADING_NOISE_PATHS * position_noise_m(x, y, pieces))
+        if window > window_samples(t):
+            x, y = smooth_pieces(x, window, pieces), smooth_pieces(y, window, pieces)
+        heading = position_heading_rad(x, y, t, pieces, speed)
         return np.cos(heading), np.sin(heading)
     n = len(frame)
     return np.ones(n), np.zeros(n)
+
+
+def _heading_window(t, speed, path_m: float) -> int:
+    """Samples (odd) that cover ``path_m`` of path at the median moving speed, at most a
+    quarter of the recording; 1 at rest or for no path."""
+    moving = np.abs(np.asarray(speed, float))
+    moving = moving[moving > STILL_SPEED_MPS]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    if not moving.size or dt <= 0 or not path_m > 0:
+        return 1
+    n = round(path_m / (float(np.median(moving)) * dt))
+    return min(max(n, 1), max(1, len(t) // 4)) | 1
 
 
 def _wind(frame: pd.DataFrame, conditions: Conditions | None, n: int):
