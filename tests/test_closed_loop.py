@@ -87,6 +87,9 @@ def test_closed_loop_missions_end_at_home_within_the_battery(map_seed, seed):
     out = fly_session(kit, spec, truth, seed)
     assert not out["stranded"], out
     assert out["energy_left_J"] >= 0
+    if out["returned_early"]:  # the return is recorded: what was predicted, kept and flown
+        assert out["return_predicted_J"] > 0 and out["return_flown_J"] > 0
+        assert out["return_reserve_J"] >= 0
 
 
 def test_a_closed_loop_keeps_the_models_spread_for_the_way_home():
