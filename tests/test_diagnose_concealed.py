@@ -39,12 +39,8 @@ NOT_YET: dict[str, str] = {
     "drift": "a 4.2 W drift at t = 3.7 under the residual's autoregressive long-run variance "
              "(4.5 under batch means); told the drift, the oracle gives "
              "the same 3.7: the recording does not carry it at MIN_T = 4",
-    "battery_resistance": "the in-battery loss at t = 3.95 against MIN_T = 4 (held-out gain "
-                          "4.3 %): with the grade read as a sine the grade no longer leans "
-                          "high and the loss no longer reads 30 % high, and at seed 0 what is "
-                          "left sits at the bar",
 }
-NOT_FOUND: set[str] = {"drift", "battery_resistance"}
+NOT_FOUND: set[str] = {"drift"}
 PARAMS_NOT_YET: dict[str, str] = {}
 
 

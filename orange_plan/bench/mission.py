@@ -395,21 +395,12 @@ def fly_session(kit: _MapKit, spec: MissionSpec, truth, seed: int, plan=None,
                 xy = kit.home.path(here)
             speed = np.full(len(xy), kit.home.speed_mps)
             returning = True
-            flown.return_predicted_J = _predicted_J(session, ctx, xy, speed)
+            flown.return_predicted_J = session.homeward_energy_J
             flown.return_reserve_J = float(d.reserve_J)
         if len(xy) < 2 or float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) < 1e-6:
             break
     flown.note = f"{actions.count('replan')} replan / {actions.count('return_home')} home advised"
     return flown.outcome(ctx)
-
-
-def _predicted_J(session, ctx, xy, speed) -> float:
-    """The session's online-model energy of the route ``xy`` flown at ``speed`` [J]: what it
-    expects the way home to cost (``return_predicted_J``)."""
-    from orange_plan.physics.pathcost import path_energy
-
-    return float(path_energy(session.online_model, ctx.world, np.asarray(xy, float),
-                             np.asarray(speed, float)[:-1], session.conditions_now).total_J)
 
 
 def run_one_mission(spec: MissionSpec, seed: int) -> dict:

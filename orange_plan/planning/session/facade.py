@@ -62,6 +62,9 @@ class MissionSession:
         metre departing from the plan's) no longer call for replans
     ctx : the current context (its world gains the map updates; each update raises its
         map's ``version``)
+    homeward_energy_J : the online model's energy of the route ``homeward_xy_m`` last gave
+        (the stretch ahead and the way home from its end, as the decision costs them; NaN
+        before it was asked) [J]
     """
 
     def __init__(self, ctx, plan: Plan | None = None, *, n_vertices: int = 3000, seed: int = 0,
@@ -69,6 +72,7 @@ class MissionSession:
                  memory_s: float = 300.0, window_s: float = 300.0,
                  closed_loop: bool = False):
         self._closed_loop_always = bool(closed_loop)
+        self.homeward_energy_J = math.nan
         self.closed_loop = self._closed_loop_always  # until a plan is adopted (``_adopt``)
         margin = 0.0 if replan_margin_J is None else float(replan_margin_J)
         if not math.isfinite(margin):
@@ -338,32 +342,42 @@ class MissionSession:
         route flown after the turn thus keeps the live check's own guarantee at its end,
         where the robot would have been told to turn."""
         ahead = self._route_ahead() if self.closed_loop else None
-        if ahead is None:
-            return self.way_home_xy_m()
-        xy, speeds = ahead
-        spare = self.energy_available_J - self.energy_used_J
-        for part in reversed(self._stretch_cuts(xy)):
-            # the stretch starts at the reported position, off the route by the tracking
-            # error: its join to the route must keep the map's clearance too
-            if not self.ctx.world.segments_free(part[:-1], part[1:]).all():
-                continue
-            if self._homeward_need_J(part, speeds) <= spare:
-                back = self._way_home_from(part[-1])
-                if back is not None:
-                    return np.vstack([part, back[1:]])
+        if ahead is not None:
+            xy, speeds = ahead
+            spare = self.energy_available_J - self.energy_used_J
+            for part in reversed(self._stretch_cuts(xy)):
+                # the stretch starts at the reported position, off the route by the tracking
+                # error: its join to the route must keep the map's clearance too
+                if not self.ctx.world.segments_free(part[:-1], part[1:]).all():
+                    continue
+                energy, need = self._homeward_energy_and_need_J(part, speeds)
+                if need <= spare:
+                    back = self._way_home_from(part[-1])
+                    if back is not None:
+                        self.homeward_energy_J = energy
+                        return np.vstack([part, back[1:]])
+        self.homeward_energy_J = self._return_home().energy_J
         return self.way_home_xy_m()
 
     def _homeward_need_J(self, part, speeds) -> float:
         """Energy a homeward route needs [J]: the stretch ``part`` (from the position, at the
         first of ``speeds``), the way home from its end and the return reserve for both
         (``homeward_xy_m``); inf when no way home is found from its end."""
+        return self._homeward_energy_and_need_J(part, speeds)[1]
+
+    def _homeward_energy_and_need_J(self, part, speeds) -> tuple[float, float]:
+        """(energy, need) of a homeward route [J]: the online model's energy of the stretch
+        ``part`` and of the way home from its end, and that plus the return reserve for both
+        (``_homeward_need_J``); (inf, inf) when no way home is found from its end."""
         then = self._return_home(part[-1])
         if not math.isfinite(then.energy_J):
-            return math.inf
+            return math.inf, math.inf
         stretch = self._stretch_J(part, speeds[:len(part) - 1])
+        energy = stretch + then.energy_J
         sd = math.hypot(then.sd_J, self._return_relative_spread() * stretch)
-        return stretch + then.energy_J + float(reserve_from(self.ctx.scenario).return_only_J(
-            stretch + then.energy_J, sd**2, self.energy_available_J))
+        reserve = self._reach()[0].reserve
+        return energy, energy + float(reserve.return_only_J(energy, sd**2,
+                                                            self.energy_available_J))
 
     def _position_where(self) -> str:
         """"free" where the map allows the robot to be (``World.is_free``), else
