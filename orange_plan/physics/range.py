@@ -10,6 +10,7 @@ import numpy as np
 from orange_plan.errors import InputError
 from orange_plan.mission import check_time_limit
 from orange_plan.physics.conditions import Conditions
+from orange_plan.physics.horizon import planning_elapsed_s
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
 from orange_plan.physics.state import MotionState
@@ -231,7 +232,9 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None,
     paths = radial_probe_paths(world) if paths is None else paths
     if not paths:
         raise InputError("no a priori path: home has no free straight line out")
-    conditions = Conditions.of(scenario)
+    conditions = Conditions.of(scenario)  # a drift at its worst over the horizon, as planning
+    conditions = conditions.with_elapsed(planning_elapsed_s(scenario, model, world.default_crr,
+                                                            conditions))
     starts = np.concatenate([p[:-1] for p in paths])
     ends = np.concatenate([p[1:] for p in paths])
     steps = subdivide(world, starts, ends)  # terrain sampled once, re-costed per speed
