@@ -126,3 +126,22 @@ def test_bad_horizons_and_times_are_one_line_input_errors():
                                battery=SimpleNamespace(usable_J=1.0))
     with pytest.raises(InputError, match="time_limit_s"):
         mission_horizon_s(scenario, model, 0.02, Conditions(1.0))
+
+
+def test_the_simplified_range_charges_a_rising_drift_at_the_horizon(limited):
+    """Eq. 6's energy per metre with a rising line: the drift's value at the time limit
+    (10 W) over the metre's mission time, 1 / (v D) s."""
+    from orange_plan.physics.range import simplified_range
+
+    crr = limited.world.default_crr
+    rising = _with_drift(limited, drift_term("linear", 1000.0), 5.0)
+    base = simplified_range(limited.scenario, limited.model, crr)
+    v = base.v_opt_mps
+    drifted = simplified_range(rising.scenario, rising.model, crr)
+    from orange_plan.physics.range import flat_energy_per_m_J
+
+    duty = limited.scenario.mission.duty_cycle
+    extra = (flat_energy_per_m_J(rising.model, v, crr, 0.0, duty, rising.conditions.elapsed_s)
+             - flat_energy_per_m_J(limited.model, v, crr, 0.0, duty))
+    assert float(extra) == pytest.approx(10.0 / (v * duty))
+    assert drifted.energy_per_m_J > base.energy_per_m_J
