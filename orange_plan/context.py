@@ -7,6 +7,7 @@ from pathlib import Path
 
 from orange_plan.errors import OrangeError
 from orange_plan.physics.conditions import Conditions
+from orange_plan.physics.horizon import planning_elapsed_s
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.model_builder import build_model
 from orange_plan.scenario import Scenario, load_scenario
@@ -27,7 +28,14 @@ class Context:
     def __post_init__(self):
         if self.conditions is None:
             object.__setattr__(self, "conditions", Conditions.of(self.scenario))
-            return
+        else:
+            self._check_conditions()
+        # Recomputed on every build (``replace`` included): a drift's worst time belongs to
+        # this model, not to the one the conditions were first made for.
+        object.__setattr__(self, "conditions", self.conditions.with_elapsed(planning_elapsed_s(
+            self.scenario, self.model, self.world.default_crr, self.conditions)))
+
+    def _check_conditions(self) -> None:
         # Only the wind may be measured rather than set: a duty cycle or sensor rate that
         # differs from the scenario's is a stale copy (replace(ctx, scenario=...) keeps the
         # old conditions; use with_scenario).

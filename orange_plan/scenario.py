@@ -205,6 +205,9 @@ class ModelSpec:
     drift: tuple = ()
     """The ``drift`` term's ``(shape, tau_s, from_s)`` (``physics.terms.drift_term``); ()
     for the vocabulary's cold-start decay."""
+    drift_rolling: tuple = ()
+    """The ``drift_rolling`` term's ``(shape, tau_s, from_s)``
+    (``physics.terms.drift_rolling_term``); () for the default decay."""
 
 
 @dataclass(frozen=True)
@@ -430,7 +433,7 @@ def _model_spec(table, where: str) -> ModelSpec:
     coefficients, stderr = {}, {}
     fractions = {"prior_relative_stderr": DEFAULT_PRIOR_RELATIVE_STDERR,
                  "discrepancy_rel_sd": DEFAULT_DISCREPANCY_REL_SD}
-    drift = _drift_spec(table, terms, where)
+    drift = {t: _drift_spec(table, terms, where, t) for t in DRIFT_TERMS}
     for key, value in table.items():
         if key == "terms" or key in DRIFT_KEYS:
             continue
@@ -450,30 +453,35 @@ def _model_spec(table, where: str) -> ModelSpec:
         else:
             options = set(allowed_coefs) | {"terms", "stderr", *fractions}
             raise ScenarioError(f"{where}: unknown key 'model.{key}'" + close_match_hint(key, options))
-    return ModelSpec(tuple(terms), coefficients, stderr, **fractions, drift=drift)
+    return ModelSpec(tuple(terms), coefficients, stderr, **fractions, drift=drift["drift"],
+                     drift_rolling=drift["drift_rolling"])
 
 
-DRIFT_KEYS = ("drift_shape", "drift_tau_s", "drift_from_s")
-"""[model] keys of the drift term's shape (``physics.terms.drift_term``)."""
+DRIFT_TERMS = ("drift", "drift_rolling")
+"""Terms with a shape over mission time, each set by ``<term>_shape``, ``<term>_tau_s`` and
+``<term>_from_s`` in [model]."""
+DRIFT_KEYS = tuple(f"{t}_{k}" for t in DRIFT_TERMS for k in ("shape", "tau_s", "from_s"))
+"""[model] keys of the drift terms' shapes (``physics.terms.drift_term``)."""
 
 
-def _drift_spec(table, terms, where: str) -> tuple:
-    """``(shape, tau_s, from_s)`` of the drift term from [model] ``drift_shape`` (decay,
-    linear or step), ``drift_tau_s`` (> 0) and ``drift_from_s`` (>= 0); () when none is given."""
+def _drift_spec(table, terms, where: str, term: str = "drift") -> tuple:
+    """``(shape, tau_s, from_s)`` of drift term ``term`` from [model] ``<term>_shape`` (decay,
+    linear or step), ``<term>_tau_s`` (> 0) and ``<term>_from_s`` (>= 0); () when none is
+    given."""
     from orange_plan.physics.terms import DRIFT_SHAPES, DRIFT_TAU_S
 
-    given = [k for k in DRIFT_KEYS if k in table]
+    given = [key for key in (f"{term}_{k}" for k in ("shape", "tau_s", "from_s")) if key in table]
     if not given:
         return ()
-    if "drift" not in terms:
-        raise ScenarioError(f"{where}: model.{given[0]} needs 'drift' in model.terms")
-    shape = table.get("drift_shape", "decay")
+    if term not in terms:
+        raise ScenarioError(f"{where}: model.{given[0]} needs '{term}' in model.terms")
+    shape = table.get(f"{term}_shape", "decay")
     if shape not in DRIFT_SHAPES:
-        raise ScenarioError(f"{where}: model.drift_shape = {shape!r} must be one of "
+        raise ScenarioError(f"{where}: model.{term}_shape = {shape!r} must be one of "
                             f"{', '.join(DRIFT_SHAPES)}")
-    tau = _number(table.get("drift_tau_s", DRIFT_TAU_S), "model.drift_tau_s", where)
-    start = _number(table.get("drift_from_s", 0.0), "model.drift_from_s", where)
+    tau = _number(table.get(f"{term}_tau_s", DRIFT_TAU_S), f"model.{term}_tau_s", where)
+    start = _number(table.get(f"{term}_from_s", 0.0), f"model.{term}_from_s", where)
     if not (tau > 0 and start >= 0):
-        raise ScenarioError(f"{where}: model.drift_tau_s must be > 0 and model.drift_from_s "
+        raise ScenarioError(f"{where}: model.{term}_tau_s must be > 0 and model.{term}_from_s "
                             ">= 0")
     return (shape, tau, start)

@@ -24,7 +24,7 @@ from orange_plan.context import load_context
 from orange_plan.errors import InputError
 from orange_plan.examples import examples_dir
 from orange_plan.physics.model_builder import model_with_terms
-from orange_plan.physics.terms import drift_term
+from orange_plan.physics.terms import drift_rolling_term, drift_term
 from orange_plan.physics.wind import wind_xy_mps
 from orange_plan.sim.concealed import (
     CONCEALABLE,
@@ -45,7 +45,7 @@ DURATION_S = 300.0
 RATE_HZ = 5.0
 GRADE_WINDOW_M = 2.0
 MODEL_TERMS = ("ancillary", "sensor_rate", "rolling", "surface_rolling", "aero_drag", "grade",
-               "inertia", "regen", "turning", "drift")
+               "inertia", "regen", "turning", "drift", "drift_rolling")
 """Concealed terms the model's own terms express (the rest: formulas below)."""
 
 EFFECT_PCT = {
@@ -54,6 +54,7 @@ EFFECT_PCT = {
     "regen": (0, 12), "turning": (3, 40), "wind": (0, 30), "payload": (0.5, 30),
     "hvac": (6, 30), "battery_resistance": (2.5, 11), "battery_temperature": (3, 14),
     "drift": (4, 22), "surface_label": (3, 60), "hvac_trip": (6, 30),
+    "drift_rolling": (0.2, 12),
 }
 """Share of the completed model's energy that the concealed term carries, per single-term
 case at DURATION_S [%] (|E_completed - E_scenario| / E_completed). Inertia, regen and wind
@@ -79,13 +80,15 @@ def completed_powers(case):
     in_model = [t for t in MODEL_TERMS if t in truth]
     ids = [*ctx.model.term_ids, *(t for t in in_model if not ctx.model.has(t))]
     model = model_with_terms(ctx, ids)
-    shape = truth.get("drift", {})
-    if {"drift_tau_s", "drift_span_s", "drift_from_s"} & set(shape):  # a marine trend's shape
-        drift = drift_term("step" if "drift_from_s" in shape else
-                           "linear" if "drift_span_s" in shape else "decay",
-                           shape.get("drift_tau_s", shape.get("drift_span_s", 1.0)),
-                           shape.get("drift_from_s", 0.0))
-        model = model.with_terms([drift if t.id == "drift" else t for t in model.terms], {})
+    for drift_id, make in (("drift", drift_term), ("drift_rolling", drift_rolling_term)):
+        shape = truth.get(drift_id, {})
+        if {"drift_tau_s", "drift_span_s", "drift_from_s"} & set(shape):  # a trend's shape
+            drift = make("step" if "drift_from_s" in shape else
+                         "linear" if "drift_span_s" in shape else "decay",
+                         shape.get("drift_tau_s", shape.get("drift_span_s", 1.0)),
+                         shape.get("drift_from_s", 0.0))
+            model = model.with_terms([drift if t.id == drift_id else t for t in model.terms],
+                                     {})
     model = model.with_theta({k: v for t in in_model for k, v in truth[t].items()
                               if k in model.names})
     if "wind" in truth:

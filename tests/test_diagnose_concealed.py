@@ -96,7 +96,9 @@ def test_found_parameters_are_within_their_uncertainty(results, name):
             continue
         value, sd = finding.params[param], finding.stderr[param]
         diff = (value - true + 180) % 360 - 180 if param == "wind_from_deg" else value - true
-        assert abs(diff) <= Z_MAX * sd, (param, value, sd, true)
+        # a parameter chosen from a grid (a drift's span) has no standard error: the grid's
+        # value, up to the rounding of the recording's clock
+        assert abs(diff) <= max(Z_MAX * sd, 1e-9 * abs(true)), (param, value, sd, true)
         checked += 1
     assert checked, (finding.params, case.truth)
 

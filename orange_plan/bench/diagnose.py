@@ -187,7 +187,7 @@ def _comparable(name: str, truth: dict, finding) -> bool:
     one quantity), and a shape parameter chosen from a grid (no standard error) never."""
     if name in DRIFT_SHAPE_KEYS:
         return finding.stderr.get(name, 0.0) > 0
-    if name == "drift_W":
+    if name in ("drift_W", "drift_rolling_kg"):
         true_shape = next((k for k in DRIFT_SHAPE_KEYS if k in truth), "drift_tau_s")
         return true_shape in finding.params
     return True

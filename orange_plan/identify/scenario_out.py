@@ -42,7 +42,7 @@ from orange_plan.errors import InputError, OrangeError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.model_builder import LUMPED, build_model, physical_values
 from orange_plan.physics.terms import TERMS
-from orange_plan.scenario import MODEL_EXTRA_TERMS, load_scenario
+from orange_plan.scenario import DRIFT_TERMS, MODEL_EXTRA_TERMS, load_scenario
 
 WRITTEN_BACK = tuple(row.physical for row in LUMPED.values()
                     if row.physical is not None and row.physical.startswith(("robot.", "ancillary.")))
@@ -79,9 +79,10 @@ def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path,
     fitted_extras = [t for t in model.term_ids if t in MODEL_EXTRA_TERMS]
     table["terms"] = list(dict.fromkeys([*table.get("terms", []), *fitted_extras]))
     table["discrepancy_rel_sd"] = model.discrepancy_rel_sd
-    drift = next((t for t in model.terms if t.id == "drift"), None)
-    if drift is not None and drift.shape != TERMS["drift"].shape:  # the shape diagnosis chose
-        table["drift_shape"], table["drift_tau_s"], table["drift_from_s"] = drift.shape
+    for drift in (t for t in model.terms if t.id in DRIFT_TERMS):
+        if drift.shape != TERMS[drift.id].shape:  # the shape diagnosis chose
+            for key, value in zip(("shape", "tau_s", "from_s"), drift.shape):
+                table[f"{drift.id}_{key}"] = value
     table.update({k: float(v) for k, v in theta.items()})
     table["stderr"] = {**table.get("stderr", {}), **{k: float(v) for k, v in sd.items()}}
     data["model"] = table

@@ -28,6 +28,7 @@ from orange_plan.physics.terms import (
     REFERENCE_TERM_IDS,
     TERMS,
     Term,
+    drift_rolling_term,
     drift_term,
     surface_rolling_term,
 )
@@ -106,6 +107,7 @@ LUMPED: dict[str, Lumped] = {
     # cabin HVAC on the traction battery's bus; no a priori warm-up (0: no prior)
     "hvac_fraction": Lumped(None, _constant(1.0)),
     "drift_W": Lumped(None, _constant(0.0)),
+    "drift_rolling_kg": Lumped(None, _constant(0.0)),
     # the heater request is a demand: no a priori share (0: no prior, calibrate it)
     "heater_fraction": Lumped(None, _constant(0.0)),
     # found by diagnosis (identify/diagnosis/); no a priori value (0: no prior)
@@ -251,8 +253,10 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
     ids = reference_term_ids(scenario) + [t for t in extras if t != "surface_rolling"]
     if "surface_rolling" in extras and surface_names:
         ids.insert(ids.index("rolling") + 1 if "rolling" in ids else 1, "surface_rolling")
-    terms = [drift_term(*spec.drift) if t == "drift" and spec.drift else make_term(t, surface_names)
-             for t in ids]
+    shaped = {"drift": (drift_term, spec.drift), "drift_rolling": (drift_rolling_term,
+                                                                   spec.drift_rolling)}
+    terms = [shaped[t][0](*shaped[t][1]) if t in shaped and shaped[t][1]
+             else make_term(t, surface_names) for t in ids]
     theta = {name: spec.coefficients.get(name, reference_value(name, scenario))
              for term in terms for name in term.coefficients}
     unknown = [n for n in spec.stderr if n not in theta]

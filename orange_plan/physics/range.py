@@ -10,6 +10,7 @@ import numpy as np
 from orange_plan.errors import InputError
 from orange_plan.mission import check_time_limit
 from orange_plan.physics.conditions import Conditions
+from orange_plan.physics.horizon import planning_elapsed_s
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.pathcost import heading_changes_rad, segments_energy, subdivide
 from orange_plan.physics.state import MotionState
@@ -93,16 +94,20 @@ def best_speed(cost_per_m, v_min_mps: float, v_max_mps: float, xatol: float = 1e
     return float(min([v_min_mps, v_max_mps, middle], key=cost_per_m))
 
 
-def flat_state(speed_mps, crr: float, sensor_rate_Hz: float) -> MotionState:
-    """Level, windless, straight motion on ground of rolling coefficient ``crr``."""
-    return MotionState(speed_mps=speed_mps, crr=crr, sensor_rate_Hz=sensor_rate_Hz)
+def flat_state(speed_mps, crr: float, sensor_rate_Hz: float,
+               elapsed_s: float = 0.0) -> MotionState:
+    """Level, windless, straight motion on ground of rolling coefficient ``crr``, a drift
+    charged at mission time ``elapsed_s`` [s] (planning's: ``Conditions.elapsed_s``)."""
+    return MotionState(speed_mps=speed_mps, crr=crr, sensor_rate_Hz=sensor_rate_Hz,
+                       channels={"elapsed_s": elapsed_s})
 
 
 def flat_energy_per_m_J(model: EnergyModel, speed_mps, crr: float, sensor_rate_Hz: float,
-                        duty_cycle: float):
+                        duty_cycle: float, elapsed_s: float = 0.0):
     """Battery energy per metre on level, windless ground of rolling coefficient ``crr``
-    (Eq. 6's denominator) [J/m]; ``speed_mps`` of any shape."""
-    state = flat_state(speed_mps, crr, sensor_rate_Hz)
+    (Eq. 6's denominator), a drift charged at ``elapsed_s`` [J/m]; ``speed_mps`` of any
+    shape."""
+    state = flat_state(speed_mps, crr, sensor_rate_Hz, elapsed_s)
     return model.segment_energy(state, 1.0, duty_cycle).total_J
 
 
@@ -148,9 +153,11 @@ def simplified_range(scenario, model: EnergyModel, crr: float,
     """
     duty = scenario.mission.duty_cycle
     rate = scenario.ancillary.sensor_rate_Hz
+    # a drift at its worst over the mission's horizon, as planning charges it
+    elapsed = planning_elapsed_s(scenario, model, crr, Conditions.of(scenario))
 
     def cost_per_m(v):
-        return float(flat_energy_per_m_J(model, v, crr, rate, duty))
+        return float(flat_energy_per_m_J(model, v, crr, rate, duty, elapsed))
 
     v = best_speed(cost_per_m, scenario.robot.v_min_mps, scenario.robot.v_max_mps)
     cost = cost_per_m(v)
@@ -165,7 +172,8 @@ def breakdown(scenario, model: EnergyModel, result: RangeResult, crr: float) -> 
     """Split the available energy of a full-range flat mission into its consumers and losses."""
     bat, losses = scenario.battery, scenario.losses
     duty, rate = scenario.mission.duty_cycle, scenario.ancillary.sensor_rate_Hz
-    state = flat_state(result.v_opt_mps, crr, rate)
+    elapsed = planning_elapsed_s(scenario, model, crr, Conditions.of(scenario))
+    state = flat_state(result.v_opt_mps, crr, rate, elapsed)
     seg = model.segment_energy(state, result.d_max_m, duty)
     ancillary_J, traversal_J = float(seg.ancillary_J), float(seg.traversal_J + seg.turning_J)
     # The model's hover coefficient (a [model] table or calibration may have replaced the
@@ -231,7 +239,9 @@ def generalised_range(scenario, model: EnergyModel, world, paths=None,
     paths = radial_probe_paths(world) if paths is None else paths
     if not paths:
         raise InputError("no a priori path: home has no free straight line out")
-    conditions = Conditions.of(scenario)
+    conditions = Conditions.of(scenario)  # a drift at its worst over the horizon, as planning
+    conditions = conditions.with_elapsed(planning_elapsed_s(scenario, model, world.default_crr,
+                                                            conditions))
     starts = np.concatenate([p[:-1] for p in paths])
     ends = np.concatenate([p[1:] for p in paths])
     steps = subdivide(world, starts, ends)  # terrain sampled once, re-costed per speed

@@ -32,6 +32,7 @@ from typing import Literal
 
 import numpy as np
 
+from orange_plan.errors import InputError
 from orange_plan.physics import ops
 from orange_plan.physics.state import Channel, MotionState
 
@@ -251,7 +252,10 @@ def drift_shape_feature(shape: str, tau_s: float = DRIFT_TAU_S, from_s: float = 
     from_s : time of a ``step`` [s] (it rises over one second, so CasADi can differentiate it)
     """
     if shape not in DRIFT_SHAPES:
-        raise ValueError(f"drift shape {shape!r} is not one of {DRIFT_SHAPES}")
+        raise InputError(f"drift shape {shape!r} is not one of {', '.join(DRIFT_SHAPES)}")
+    if not (np.isfinite(tau_s) and tau_s > 0 and np.isfinite(from_s) and from_s >= 0):
+        raise InputError(f"a drift needs tau_s > 0 and from_s >= 0 (finite), got tau_s = "
+                         f"{tau_s!r} s, from_s = {from_s!r} s")
 
     def feature(state: MotionState):
         t = state.channel(ELAPSED_S.name)
@@ -273,6 +277,26 @@ def drift_term(shape: str = "decay", tau_s: float = DRIFT_TAU_S, from_s: float =
     return Term("drift", "power", ("drift_W",), drift_shape_feature(shape, tau_s, from_s),
                 f"a power changing over mission time ({shape}, tau {tau_s:g} s, from {from_s:g} s)",
                 (ELAPSED_S,), (shape, float(tau_s), float(from_s)))
+
+
+def drift_rolling_term(shape: str = "decay", tau_s: float = DRIFT_TAU_S,
+                       from_s: float = 0.0) -> Term:
+    """The ``drift_rolling`` term: the rolling coefficient changing over mission time, of a
+    drift's ``shape`` (``drift_shape_feature``) [N/kg].
+
+    Feature ``s(t) g crr cos(theta)``, ``s`` the shape: the rolling force per kg of the
+    change. Coefficient ``drift_rolling_kg`` [kg], either sign: the change of ``rolling_kg``
+    per unit of the shape (a line's change over ``tau_s``, a decay's at the start, a step's
+    size), as tyres warm and soften or a track's surface wears, wets or dries. A force, so it
+    is charged through the traction clip like the rolling term it changes."""
+    shape_of = drift_shape_feature(shape, tau_s, from_s)
+
+    def feature(state: MotionState):
+        return (shape_of(state)[0] * rolling_per_kg(state),)
+
+    return Term("drift_rolling", "force", ("drift_rolling_kg",), feature,
+                f"the rolling coefficient changing over mission time ({shape}, tau {tau_s:g} s, "
+                f"from {from_s:g} s)", (ELAPSED_S,), (shape, float(tau_s), float(from_s)))
 
 
 HVAC_SETPOINT_C = 20.0
@@ -349,6 +373,7 @@ TERMS: dict[str, Term] = {
         Term("drift", "power", ("drift_W",), drift_feature,
              "extra power at a cold start, decaying with time constant DRIFT_TAU_S",
              (ELAPSED_S,), ("decay", DRIFT_TAU_S, 0.0)),
+        drift_rolling_term(),
         Term("hvac_ambient", "power", ("hvac_heat_W_per_K", "hvac_cool_W_per_K"),
              hvac_ambient_feature,
              "heating / cooling power following the ambient temperature (no HVAC meter)",
@@ -364,7 +389,8 @@ TERMS: dict[str, Term] = {
 """The vocabulary terms with fixed coefficients; ``surface_rolling`` is built per map."""
 
 VARIANT_OF = {"rolling_torque": "rolling", "turning_torque": "turning", "heater": "hvac",
-              "hvac_ambient": "hvac", "surface_label": "surface_rolling"}
+              "hvac_ambient": "hvac", "surface_label": "surface_rolling",
+              "drift_rolling": "drift"}
 """Terms of our own that are variants of a vocabulary id (reports give both)."""
 
 

@@ -146,4 +146,5 @@ def _flat_energy_per_m(cost) -> float:
     """Energy per metre at the cruise speed on flat default ground [J/m] (joins' weight)."""
 
     return float(flat_energy_per_m_J(cost.model, cost.speed_mps, cost.world.default_crr,
-                                     cost.conditions.sensor_rate_Hz, cost.conditions.duty_cycle))
+                                     cost.conditions.sensor_rate_Hz, cost.conditions.duty_cycle,
+                                     cost.conditions.elapsed_s))

@@ -61,7 +61,8 @@ def _per_metre(model, ctx, speed_mps: float | None = None) -> float:
 
     speed = ctx.cruise_speed_mps if speed_mps is None else speed_mps
     return float(flat_energy_per_m_J(model, speed, ctx.world.default_crr,
-                                     ctx.conditions.sensor_rate_Hz, ctx.conditions.duty_cycle))
+                                     ctx.conditions.sensor_rate_Hz, ctx.conditions.duty_cycle,
+                                     ctx.conditions.elapsed_s))
 
 
 def _time_left_s(ctx, start: StartState) -> float:

@@ -17,7 +17,8 @@ How a case is made
    again until a quarter to three quarters of the drive is on its surface, ``SURFACE_SHARE``)
    under the *truth* scenario, whose model has the concealed motion terms with their true
    coefficients (``rolling``, ``surface_rolling``, ``aero_drag``, ``grade``, ``inertia``,
-   ``regen``, ``turning``) or the
+   ``regen``, ``turning``, and ``drift_rolling``: the rolling coefficient changing through the
+   run, ``concealed_recipes._drift_rolling``) or the
    simulator's truth-only effects (``wind``: mean + Ornstein-Uhlenbeck gusts, not recorded;
    ``payload``: mass change at ``payload_from_s``). Aerial runs lose the simulator's rest at
    both ends, so "stationary at the ends" means landed (``hover``).
@@ -96,12 +97,13 @@ from orange_plan.telemetry.recording import Recording, recording_from_frame, wri
 CONCEALABLE: tuple[str, ...] = (
     "ancillary", "sensor_rate", "hover", "rolling", "surface_rolling", "aero_drag", "grade",
     "inertia", "regen", "turning", "wind", "payload", "hvac", "battery_resistance",
-    "battery_temperature", "drift", "surface_label", "hvac_trip",
+    "battery_temperature", "drift", "surface_label", "hvac_trip", "drift_rolling",
 )
 """Vocabulary ids a case can conceal, and two variants: ``surface_label``, per-surface
 rolling on a map without surfaces, the recording carrying a terrain classifier's delayed
 ``surface`` labels (reported as ``surface_rolling``); ``hvac_trip``, the ``hvac`` effect on a
-trip whose ambient temperature spans only 3-10 K (reported as ``hvac``)."""
+trip whose ambient temperature spans only 3-10 K (reported as ``hvac``); ``drift_rolling``,
+the rolling coefficient changing through the run (reported as ``drift``)."""
 
 PAIRS: tuple[tuple[str, str], ...] = (
     ("turning", "payload"), ("wind", "payload"), ("surface_rolling", "battery_resistance"),
@@ -117,7 +119,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "payload": ("ground", "aerial"), "hvac": ("ground", "aerial", "marine"),
     "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
     "drift": ("ground", "aerial", "marine"), "surface_label": ("ground",),
-    "hvac_trip": ("ground", "aerial"),
+    "hvac_trip": ("ground", "aerial"), "drift_rolling": ("ground",),
 }
 """Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
 Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed

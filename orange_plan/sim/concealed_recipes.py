@@ -321,13 +321,44 @@ def _drift_trend(plan: _Plan, rng) -> None:
     plan.power_effects.append(add)
 
 
+ROLLING_TREND = (0.20, 0.50)
+"""Range of a ``drift_rolling`` case's change of the rolling coefficient over the run, a share
+of its value [-] (``_drift_rolling``)."""
+
+
+def _drift_rolling(plan: _Plan, rng) -> None:
+    """The rolling coefficient changing through the run (tyres warming and softening, a track
+    wetting or drying): up or down by ``ROLLING_TREND`` of its value over the run, as a line,
+    a saturating exponential (time constant 5-50 % of the run) or a step at 20-80 % of it.
+    The truth's model carries the ``drift_rolling`` term, so the simulator drives it; its
+    parameters are the term's (``physics.terms.drift_rolling_term``)."""
+    shape = str(rng.choice(TREND_SHAPES))
+    change = rng.uniform(*ROLLING_TREND) * (1.0 if rng.random() < 0.5 else -1.0)
+    span = plan.duration_s
+    tau = rng.uniform(0.05, 0.5) * span if shape == "decay" else span
+    from_s = rng.uniform(0.2, 0.8) * span if shape == "step" else 0.0
+    rolling_kg = float(_model(plan.truth_toml).get("rolling_kg", plan.mass_over_omega_kg))
+    # over the run the shape moves by its swing: 1, except a decay's 1 - exp(-span / tau);
+    # a decay falls, so a rise is a negative coefficient (a change that levels off)
+    swing = 1.0 - float(np.exp(-span / tau)) if shape == "decay" else 1.0
+    sign = -1.0 if shape == "decay" else 1.0
+    delta_kg = sign * change * rolling_kg / swing
+    _add_model_term(plan.truth_toml, "drift_rolling")
+    _model(plan.truth_toml).update(drift_rolling_kg=delta_kg, drift_rolling_shape=shape,
+                                   drift_rolling_tau_s=tau, drift_rolling_from_s=from_s)
+    extra = ({"drift_from_s": from_s} if shape == "step"
+             else {"drift_span_s" if shape == "linear" else "drift_tau_s": tau})
+    plan.truth["drift_rolling"] = {"drift_rolling_kg": float(delta_kg), **extra}
+    plan.shape_route("walks")  # a sidewalk robot's walks: rolling is over half its power
+
+
 RECIPES: dict[str, Callable[[_Plan, np.random.Generator], None]] = {
     "ancillary": _ancillary, "sensor_rate": _sensor_rate, "hover": _hover, "rolling": _rolling,
     "surface_rolling": _surface_rolling, "aero_drag": _aero_drag, "grade": _grade,
     "inertia": _inertia, "regen": _regen, "turning": _turning, "wind": _wind,
     "payload": _payload, "hvac": _hvac, "battery_resistance": _battery_resistance,
     "battery_temperature": _battery_temperature, "drift": _drift,
-    "surface_label": _surface_label, "hvac_trip": _hvac_trip,
+    "surface_label": _surface_label, "hvac_trip": _hvac_trip, "drift_rolling": _drift_rolling,
 }
 
 

@@ -202,7 +202,9 @@ def simulate(ctx: Context, route: Route, truth: Truth | None = None, seed: int =
         yaw, carry = spread_yaw_rate(heading, heading0, carry, k_turn, dt)
         heading0 = heading[-1]
         crr = np.clip(steps.crr[j] + np.interp(s_lap, rough_grid, rough), 0.0, 1.0)
-        state = drive_state(steps, kin, yaw, wind_xy, crr, ctx.conditions)
+        # the truth's drift follows the clock; planning's is held at its worst (Conditions)
+        state = drive_state(steps, kin, yaw, wind_xy, crr, ctx.conditions).with_(
+            elapsed_s=kin["t"])
         carrying = kin["t"] >= truth.payload_from_s if truth.payload_kg else np.zeros(j.size, bool)
         power = base.power_W(state)
         if carrying.any():  # the loaded model only where the payload is on board

@@ -16,6 +16,7 @@ from orange_plan.identify.diagnosis.design import (
 )
 from orange_plan.identify.diagnosis.effects import (
     _drift_effect,
+    _drift_rolling_effect,
     _needs_mass,
     _payload_effect,
     _surface_effect,
@@ -28,7 +29,7 @@ from orange_plan.physics.terms import TERMS
 TERM_CANDIDATES = ("ancillary", "sensor_rate", "hover", "rolling", "surface_rolling",
                    "aero_drag", "grade", "inertia", "regen", "turning", "turning_torque",
                    "hvac", "hvac_ambient", "heater", "battery_resistance",
-                   "battery_temperature", "drift")
+                   "battery_temperature", "drift", "drift_rolling")
 """Candidates that are terms of ``physics.terms`` (besides ``wind`` and ``payload``)."""
 
 
@@ -78,6 +79,14 @@ def _needs_long_run(d: Design):
     span = float(d.t_s[-1] - d.t_s[0])
     return None if span >= 0.5 * DRIFT_TAU_S else f"the run ({span:.0f} s) is too short to " \
         f"show a warm-up of time constant {DRIFT_TAU_S:.0f} s"
+
+
+def _needs_rolling_long_run(d: Design):
+    """A rolling coefficient that changes needs a rolling term to change, and a long run
+    (``_needs_long_run``)."""
+    if "rolling_kg" not in d.base.names or d.base.coefficient("rolling_kg") <= 0:
+        return "no rolling term whose coefficient could change"
+    return _needs_long_run(d)
 
 
 def _needs_cold_cells(d: Design):
@@ -135,6 +144,7 @@ _NEEDS: dict[str, Callable] = {
     "hvac_ambient": _varies("ambient_C", 3.0),
     "battery_temperature": _needs_cold_cells,
     "drift": _needs_long_run,
+    "drift_rolling": _needs_rolling_long_run,
 }
 _FEATURES: dict[str, tuple[Callable, str]] = {
     "ancillary": (lambda d: d.t_s, "time since start [s]"),
@@ -154,6 +164,7 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
     "battery_resistance": (lambda d: d.base.load_power_W(d.state), "load power [W]"),
     "battery_temperature": (_column("battery_C"), "battery temperature [C]"),
     "drift": (lambda d: d.t_s, "time since start [s]"),
+    "drift_rolling": (lambda d: d.t_s, "time since start [s]"),
     "payload": (lambda d: d.t_s, "time since start [s]"),
     LABEL_CANDIDATE: (lambda d: surface_labels(d).code, "surface label (-1: the reference)"),
     "wind": (lambda d: np.degrees(np.arctan2(d.state.dir_x, d.state.dir_y)) % 360.0,
@@ -163,7 +174,8 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
 
 def candidates() -> list[Candidate]:
     """Every candidate diagnosis tries (the method: ``identify.diagnosis``)."""
-    special = {"surface_rolling": _surface_effect, "drift": _drift_effect}
+    special = {"surface_rolling": _surface_effect, "drift": _drift_effect,
+               "drift_rolling": _drift_rolling_effect}
     out = [Candidate(t, _applies_term(t, _NEEDS.get(t)), special.get(t) or _term_effect(t),
                      _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]
     out.append(Candidate("payload", _needs_mass, _payload_effect, _feature(*_FEATURES["payload"])))

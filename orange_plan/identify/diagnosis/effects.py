@@ -17,6 +17,7 @@ from orange_plan.physics.state import MotionState
 from orange_plan.physics.terms import (
     DRIFT_TAU_S,
     aero_drag_feature,
+    drift_rolling_term,
     drift_shape_feature,
     drift_term,
 )
@@ -148,6 +149,7 @@ class _DriftProjection:
     own: np.ndarray
     cc: np.ndarray
     n_eff: float
+    q: np.ndarray  # an orthonormal basis of the baseline's columns on the rows
 
 
 _DRIFT_FAMILIES: list = []
@@ -188,20 +190,77 @@ def _drift_effect(d: Design, resid, rows) -> Effect:
     family = _drift_shapes(d)
     best = (family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0)) if resid is None
             else _best_drift_shape(d, resid, rows, family))
-    chosen, col = family.shapes[best], family.columns[:, best]
-    extra = ({"drift_from_s": (chosen.from_s, 0.0)} if chosen.shape == "step"
-             else {"drift_span_s" if chosen.shape == "linear" else "drift_tau_s":
-                   (chosen.tau_s, 0.0)})
-    return Effect(col[:, None], ("drift_W",), np.array([-np.inf]), np.array([np.inf]), extra)
+    chosen, col = _refined(d, resid, rows, family, best, np.ones(d.n), "drift")
+    return Effect(col[:, None], ("drift_W",), np.array([-np.inf]), np.array([np.inf]),
+                  _shape_params(chosen))
 
 
-def _best_drift_shape(d: Design, resid, rows, family: DriftFamily) -> int:
-    """The index of the shape with the smallest BIC on ``rows`` (``_drift_effect``)."""
-    key = ("drift_projection", hash(np.packbits(rows).tobytes()))
+def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
+    """The rolling coefficient changing slowly over the run: each shape of the drift family
+    times the baseline's rolling column (the rolling force per kg, charged where the baseline
+    drives), the shape chosen by the information criterion as a power drift's
+    (``_drift_effect``). A coefficient that changes only where the robot rolls is told from a
+    power drift by that column: at rest and on a descent it adds nothing. Its steps are left
+    out: a step of the rolling coefficient and a payload's step of the mass differ only by the
+    grade's and the inertia's share of the mass, and on the generated ground cases the two
+    traded places both ways (``turning+payload`` seed 0 named a rolling step for its payload,
+    ``drift_rolling`` seed 3 a payload for its rolling step)."""
+    family = _drift_shapes(d)
+    rolling = d.columns[:, d.base.names.index("rolling_kg")]
+    columns = family.columns * rolling[:, None]  # one per shape, for the choice
+    default = family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0))
+    best = (default if resid is None else _best_drift_shape(
+        d, resid, rows, family, columns, "drift_rolling", no_steps=True))
+    chosen, col = _refined(d, resid, rows, family, best, rolling, "drift_rolling")
+    base = d.base.coefficient("rolling_kg")
+    return Effect(col[:, None], ("drift_rolling_kg",), np.array([-max(base, 0.0)]),
+                  np.array([np.inf]), _shape_params(chosen))
+
+
+def _refined(d: Design, resid, rows, family: DriftFamily, best: int, scale: np.ndarray,
+             tag: str) -> tuple[DriftShape, np.ndarray]:
+    """The chosen shape and its column (the shape times ``scale`` per sample); a step's time
+    refined to the second within a grid spacing of the grid's pick, as a payload's change
+    time is scanned over every sample. On the grid alone a step fell up to half a spacing
+    (22 s of a 30-minute run) from its time, and a payload's step, scanned finely, fitted a
+    rolling coefficient's step better than the drift's own (seed 3 of ``drift_rolling``)."""
+    chosen = family.shapes[best]
+    if chosen.shape != "step" or resid is None:
+        return chosen, family.columns[:, best] * scale
+    elapsed = d.t_s - d.t_s[0]
+    spacing = family.shapes[best].tau_s * 0.9 / max(d.settings.drift_step_times - 1, 1)
+    times = np.arange(max(chosen.from_s - spacing, 0.0), chosen.from_s + spacing + 0.5, 1.0)
+    proj = d.cache[(f"{tag}_projection", hash(np.packbits(rows).tobytes()))]
+    steps = np.clip(elapsed[rows, None] - times[None, :] + 0.5, 0.0, 1.0) * scale[rows, None]
+    own = steps - proj.q @ (proj.q.T @ steps)
+    cc = np.einsum("ij,ij->j", own, own)
+    fall = np.where(cc > 0, (resid[rows] @ own) ** 2 / np.where(cc > 0, cc, 1.0), -np.inf)
+    # every time inside a stretch of held-out rows fits the training rows alike: the middle
+    # of the tie, as a payload's change time (``_payload_effect``), not its start
+    ties = np.flatnonzero(fall >= fall.max() - 1e-9 * abs(fall.max()))
+    from_s = float(times[ties[ties.size // 2]])
+    column = np.clip(elapsed - from_s + 0.5, 0.0, 1.0) * scale
+    return DriftShape("step", chosen.tau_s, from_s), column
+
+
+def _shape_params(chosen: DriftShape) -> dict:
+    """A drift shape as a finding's parameters (``_drift_term_of`` reads them back)."""
+    if chosen.shape == "step":
+        return {"drift_from_s": (chosen.from_s, 0.0)}
+    return {"drift_span_s" if chosen.shape == "linear" else "drift_tau_s": (chosen.tau_s, 0.0)}
+
+
+def _best_drift_shape(d: Design, resid, rows, family: DriftFamily, columns=None,
+                      tag: str = "drift", no_steps: bool | None = None) -> int:
+    """The index of the shape with the smallest BIC on ``rows`` (``_drift_effect``); the
+    shapes' ``columns`` (default: the family's own, a power drift's), cached under ``tag``,
+    steps left out when ``no_steps`` (default: a power step that is a payload's)."""
+    columns = family.columns if columns is None else columns
+    key = (f"{tag}_projection", hash(np.packbits(rows).tobytes()))
     if key not in d.cache:  # the same for every residual on these rows: built once
         x = d.columns[rows]
         q, _ = np.linalg.qr(x / np.maximum(np.linalg.norm(x, axis=0), 1e-300))
-        c = family.columns[rows]
+        c = columns[rows]
         own = c - q @ (q.T @ c)  # each shape's part the baseline's columns do not span
         cc = np.einsum("ij,ij->j", own, own)
         spanned = cc <= 1e-9 * np.maximum(np.einsum("ij,ij->j", c, c), 1e-300)  # a constant
@@ -209,14 +268,14 @@ def _best_drift_shape(d: Design, resid, rows, family: DriftFamily) -> int:
         # effective sample count, the same for every shape compared
         tau = autoregressive_inflation(resid, d.samples, d.settings.inflation_block_s)
         d.cache[key] = _DriftProjection(own, np.where(spanned, np.inf, cc),
-                                        max(rows.sum() / tau, 2.0))
+                                        max(rows.sum() / tau, 2.0), q)
     proj = d.cache[key]
     r = resid[rows]
     fall = (r @ proj.own) ** 2 / proj.cc
     rss = np.maximum(float(r @ r) - fall, 1e-300)
     nonlinear = np.array([s.shape != "linear" for s in family.shapes], float)
     bic = proj.n_eff * np.log(rss) + nonlinear * np.log(proj.n_eff)
-    if _steps_are_payloads(d):
+    if _steps_are_payloads(d) if no_steps is None else no_steps:
         bic[[i for i, s in enumerate(family.shapes) if s.shape == "step"]] = np.inf
     return int(np.argmin(bic))
 
@@ -239,13 +298,15 @@ def _steps_are_payloads(d: Design) -> bool:
     return _needs_mass(d) is None and float(np.ptp(per_kg)) <= spread * abs(mean)
 
 
-def _drift_term_of(params: dict):
-    """The ``drift`` term of a finding's shape (its parameters name it)."""
+def _drift_term_of(params: dict, term_id: str = "drift"):
+    """The ``drift`` (or ``drift_rolling``) term of a finding's shape (its parameters name
+    it)."""
+    make = drift_rolling_term if term_id == "drift_rolling" else drift_term
     if "drift_from_s" in params:
-        return drift_term("step", from_s=params["drift_from_s"])
+        return make("step", from_s=params["drift_from_s"])
     if "drift_span_s" in params:
-        return drift_term("linear", params["drift_span_s"])
-    return drift_term("decay", params.get("drift_tau_s", DRIFT_TAU_S))
+        return make("linear", params["drift_span_s"])
+    return make("decay", params.get("drift_tau_s", DRIFT_TAU_S))
 
 
 def payload_step(d: Design, t0: float, sd: float = 0.0) -> Effect:

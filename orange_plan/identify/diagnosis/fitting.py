@@ -161,7 +161,7 @@ def _reference(d: Design, chosen: list[Candidate], new: list[Candidate], current
 def _goes_inside(cand: Candidate) -> bool:
     """Whether ``polish`` puts a chosen candidate inside the model (a term; not hover, whose
     column idles when landed, nor a drift, whose shape is the candidate's)."""
-    return ((cand.id in TERMS and cand.id not in ("hover", "drift"))
+    return ((cand.id in TERMS and cand.id not in ("hover", "drift", "drift_rolling"))
             or cand.id in ("surface_rolling", LABEL_CANDIDATE))
 
 

@@ -274,7 +274,8 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
             changes["environment.wind_speed_mps"] = float(speed)
             changes["environment.wind_from_deg"] = float(from_deg) % 360.0
         else:
-            term = _drift_term_of(own) if cand.id == "drift" else make_term(cand.id, names)
+            term = (_drift_term_of(own, cand.id) if cand.id in ("drift", "drift_rolling")
+                    else make_term(cand.id, names))
             # surface_rolling stands right after rolling (model_builder's order)
             at = [t.id for t in terms].index("rolling") + 1 if term.id == "surface_rolling" \
                 else len(terms)

@@ -86,7 +86,7 @@ class DiagnosisSettings:
     inflation_block_s: float = 120.0
     min_drag_share: float = 0.02
     max_wind_mps: float = 30.0
-    scanned: frozenset[str] = frozenset({"payload", "surface_label", "drift"})
+    scanned: frozenset[str] = frozenset({"payload", "surface_label", "drift", "drift_rolling"})
     rivals: int = 4
     max_label_lag_s: float = 5.0
     label_windows_s: tuple[float, ...] = (0.0, 2.0, 4.0, 8.0)
