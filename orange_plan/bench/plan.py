@@ -680,8 +680,7 @@ def plan_figure(result: PlanBenchResult, path) -> Path:
     # Below the axes: inside, it hid the markers of the upper left corner.
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3,
               frameon=False)
-    # from just below 0 (markers at 0 stay whole) to the worst share, at least 5 %: an axis
-    # of nothing but zeros would otherwise run to negative shares
+    # from just below 0 (markers at 0 stay whole) to the worst share, at least 5 %
     worst = max((100 * r.strandings / max(len(r.flights), 1) for r in result.results),
                 default=0.0)
     top = max(5.0, 1.1 * worst)
