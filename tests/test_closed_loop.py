@@ -253,8 +253,8 @@ def test_a_stretch_that_leaves_the_free_space_is_not_flown_home(monkeypatch):
 
 def test_the_look_ahead_is_the_most_any_cut_of_the_stretch_needs():
     """The look-ahead weighs every cut of the next stretch: the stretch so far, the way home
-    from there and the reserve for both, beyond what the way home needs now; a crest inside
-    the stretch counts, a way home that shortens past it is not charged as if it did not."""
+    from there and the reserve for both, beyond what the way home needs now, and never less
+    than the last batch drew; a crest inside the stretch counts."""
     _, session = _closed_loop_session(batches=2)
     home = session._return_home()
     now = home.energy_J + home.reserve_J
@@ -268,12 +268,16 @@ def test_the_look_ahead_is_the_most_any_cut_of_the_stretch_needs():
         table = dict(zip(lengths, profile))
         return lambda part, speeds: table[float(np.sum(np.hypot(*np.diff(part, axis=0).T)))]
 
-    crest = [now + 10.0 * k for k in (1, 2, 3, 9, 4, 3, 2, 1)]  # dearest half way
+    last = session._intake.last_batch_J
+    assert last > 0
+    crest = [now + last + 10.0 * k for k in (1, 2, 3, 9, 4, 3, 2, 1)]  # dearest half way
     session._homeward_need_J = needs_of(crest)
-    assert session._lookahead_J(home) == pytest.approx(90.0)
-    downhill = [now - 5.0 * k for k in range(1, 9)]  # every cut cheaper than turning now
+    assert session._lookahead_J(home) == pytest.approx(last + 90.0)
+    # every cut cheaper than turning now: still the last batch's draw (the stretch may be
+    # costed short; the batch will draw about what the last one did)
+    downhill = [now - 5.0 * k for k in range(1, 9)]
     session._homeward_need_J = needs_of(downhill)
-    assert session._lookahead_J(home) == 0.0
+    assert session._lookahead_J(home) == pytest.approx(last)
     blocked = [now + 1.0] * 7 + [math.inf]  # no way home from the stretch's end
     session._homeward_need_J = needs_of(blocked)
     assert session._lookahead_J(home) == math.inf

@@ -36,19 +36,19 @@ from scipy.special import ndtr, ndtri
 
 from orange_plan.errors import InputError
 
-RETURN_SPREAD_FLOOR = 0.4
+RETURN_SPREAD_FLOOR = 0.2
 """A closed loop's way home is never taken as better known than this share of the model's
 a-priori run-to-run discrepancy (``EnergyModel.discrepancy_rel_sd``) [-]: the estimator learns
 the run on the way out, the way back crosses other ground in other headings. At confidence
-0.99 on the study's robot (discrepancy 0.25) it keeps 2.33 x 0.4 x 0.25 = 23 % of the return's
-energy. Measured on 200 training returns of ``bench mission`` (seeds 1000-1199, apart from
-the benchmark's 0-499): the route flown home against the session's own prediction of it
-(``MissionSession.homeward_energy_J``) was 1.3 % cheaper on average, sd 3.2 %, at worst
-3.8 % dearer, a fifth of its reserve. The reserve also covers what the return alone does
-not: the look-ahead's stretch can cost less than the batch then draws. Halved (0.2, 11.7 %
-of the return), it stranded one of the benchmark's 500 missions by 14 J, its return flown
-1 % cheaper than predicted: a short return (310 J) kept 36 J, and the last batch before the
-turn drew 172 J where the look-ahead had counted about 100."""
+0.99 on the study's robot (discrepancy 0.25) it keeps 2.33 x 0.2 x 0.25 = 11.7 % of the
+return's energy. Sized on 200 training returns of ``bench mission`` (seeds 1000-1199, apart
+from the benchmark's 0-499): the route flown home against the session's own prediction of it
+(``MissionSession.homeward_energy_J``) was 1.3 % cheaper on average, sd 3.2 %, at worst 3.8 %
+dearer: the floor is that spread rounded up by half and more, about three times the worst
+excess. It covers the return alone: the batch before the turn is the look-ahead's, which
+charges at least the last batch's draw (without that floor of the look-ahead, one of the
+benchmark's 500 missions stranded by 14 J with this reserve: its last batch drew 172 J where
+the stretch ahead was costed at about 100)."""
 
 
 def normal_quantiles(p) -> np.ndarray:

@@ -282,18 +282,19 @@ class MissionSession:
         route the decision looks at (``_route_ahead``). At each of the stretch's cuts
         (``_stretch_cuts``) it needs the stretch's energy so far, the way home from there and
         the return reserve for both (``_homeward_need_J``); the look-ahead is the most any cut
-        needs beyond what the way home needs now (never below 0). A hill just ahead is thus
-        paid for before it is climbed, a hill top past which the way home is shorter is not
-        charged as if the robot had to come back down the same way, and a cut the end of the
-        stretch would hide (over a crest, round a lane end) is checked too. At the route's
-        end: what the last batch drew."""
+        needs beyond what the way home needs now, and never less than the last batch drew (a
+        stretch costed short, a stop or a slow piece, still leaves the batch's draw). A hill
+        just ahead is thus paid for before it is climbed, a hill top past which the way home
+        is shorter is not charged as if the robot had to come back down the same way, and a
+        cut the end of the stretch would hide (over a crest, round a lane end) is checked
+        too. At the route's end: what the last batch drew."""
         last = self._intake.last_batch_J
         ahead = self._route_ahead() if math.isfinite(home.energy_J) else None
         if ahead is None:
             return last
         xy, speeds = ahead
         worst = max(self._homeward_need_J(part, speeds) for part in self._stretch_cuts(xy))
-        return max(float(worst) - (home.energy_J + home.reserve_J), 0.0)
+        return max(float(worst) - (home.energy_J + home.reserve_J), last, 0.0)
 
     @staticmethod
     def _stretch_cuts(xy) -> list[np.ndarray]:
