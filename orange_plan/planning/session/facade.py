@@ -369,7 +369,15 @@ class MissionSession:
     def _homeward_energy_and_need_J(self, part, speeds) -> tuple[float, float]:
         """(energy, need) of a homeward route [J]: the online model's energy of the stretch
         ``part`` and of the way home from its end, and that plus the return reserve for both
-        (``_homeward_need_J``); (inf, inf) when no way home is found from its end."""
+        (``_homeward_need_J``); (inf, inf) when no way home is found from its end. Built once
+        per batch and cut: the look-ahead weighs every cut at each decision, and a robot told
+        to turn home asks for the same cuts again (``homeward_xy_m``)."""
+        end = part[-1]
+        key = f"homeward:{len(part)}:{float(end[0])!r}:{float(end[1])!r}"
+        return self._per_batch(key, lambda: self._homeward_energies_J(part, speeds))
+
+    def _homeward_energies_J(self, part, speeds) -> tuple[float, float]:
+        """``_homeward_energy_and_need_J`` computed afresh."""
         then = self._return_home(part[-1])
         if not math.isfinite(then.energy_J):
             return math.inf, math.inf
