@@ -208,6 +208,9 @@ class ModelSpec:
     drift_rolling: tuple = ()
     """The ``drift_rolling`` term's ``(shape, tau_s, from_s)``
     (``physics.terms.drift_rolling_term``); () for the default decay."""
+    hvac_ambient: tuple = ()
+    """The ``hvac_ambient`` term's set-points ``(heat_below_C, cool_above_C)``
+    (``physics.terms.hvac_ambient_term``); () for the vocabulary's single set-point."""
 
 
 @dataclass(frozen=True)
@@ -434,8 +437,9 @@ def _model_spec(table, where: str) -> ModelSpec:
     fractions = {"prior_relative_stderr": DEFAULT_PRIOR_RELATIVE_STDERR,
                  "discrepancy_rel_sd": DEFAULT_DISCREPANCY_REL_SD}
     drift = {t: _drift_spec(table, terms, where, t) for t in DRIFT_TERMS}
+    hvac_setpoints = _hvac_setpoints(table, terms, where)
     for key, value in table.items():
-        if key == "terms" or key in DRIFT_KEYS:
+        if key == "terms" or key in SHAPE_KEYS:
             continue
         if key in fractions:
             fractions[key] = _number(value, f"model.{key}", where)
@@ -454,7 +458,7 @@ def _model_spec(table, where: str) -> ModelSpec:
             options = set(allowed_coefs) | {"terms", "stderr", *fractions}
             raise ScenarioError(f"{where}: unknown key 'model.{key}'" + close_match_hint(key, options))
     return ModelSpec(tuple(terms), coefficients, stderr, **fractions, drift=drift["drift"],
-                     drift_rolling=drift["drift_rolling"])
+                     drift_rolling=drift["drift_rolling"], hvac_ambient=hvac_setpoints)
 
 
 DRIFT_TERMS = ("drift", "drift_rolling")
@@ -462,6 +466,33 @@ DRIFT_TERMS = ("drift", "drift_rolling")
 ``<term>_from_s`` in [model]."""
 DRIFT_KEYS = tuple(f"{t}_{k}" for t in DRIFT_TERMS for k in ("shape", "tau_s", "from_s"))
 """[model] keys of the drift terms' shapes (``physics.terms.drift_term``)."""
+HVAC_SETPOINT_KEYS = ("hvac_ambient_heat_below_C", "hvac_ambient_cool_above_C")
+"""[model] keys of the ``hvac_ambient`` term's set-points (``physics.terms.hvac_ambient_term``)."""
+SHAPE_KEYS = DRIFT_KEYS + HVAC_SETPOINT_KEYS
+"""Every [model] key that shapes a term rather than giving a coefficient."""
+
+
+def _hvac_setpoints(table, terms, where: str) -> tuple:
+    """``(heat_below_C, cool_above_C)`` of the ``hvac_ambient`` term from [model]
+    ``hvac_ambient_heat_below_C`` and ``hvac_ambient_cool_above_C``; one given alone leaves
+    the other at the vocabulary's set-point (20 C), or at the given one where 20 C would
+    cross it. () when neither is given."""
+    from orange_plan.physics.terms import HVAC_SETPOINT_C, HVAC_SETPOINT_RANGE_C
+
+    given = [key for key in HVAC_SETPOINT_KEYS if key in table]
+    if not given:
+        return ()
+    if "hvac_ambient" not in terms:
+        raise ScenarioError(f"{where}: model.{given[0]} needs 'hvac_ambient' in model.terms")
+    heat_key, cool_key = HVAC_SETPOINT_KEYS
+    first = _number(table[given[0]], f"model.{given[0]}", where)
+    heat = _number(table.get(heat_key, min(first, HVAC_SETPOINT_C)), f"model.{heat_key}", where)
+    cool = _number(table.get(cool_key, max(first, HVAC_SETPOINT_C)), f"model.{cool_key}", where)
+    lo, hi = HVAC_SETPOINT_RANGE_C
+    if not (lo <= heat <= cool <= hi):
+        raise ScenarioError(f"{where}: model.{heat_key} = {heat:g} and model.{cool_key} = "
+                            f"{cool:g} must satisfy {lo:g} <= heat <= cool <= {hi:g} (degC)")
+    return (heat, cool)
 
 
 def _drift_spec(table, terms, where: str, term: str = "drift") -> tuple:

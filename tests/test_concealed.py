@@ -54,7 +54,7 @@ EFFECT_PCT = {
     "regen": (0, 12), "turning": (3, 40), "wind": (0, 30), "payload": (0.5, 30),
     "hvac": (6, 30), "battery_resistance": (2.5, 11), "battery_temperature": (3, 14),
     "drift": (4, 22), "surface_label": (3, 60), "hvac_trip": (6, 30),
-    "drift_rolling": (0.2, 12),
+    "drift_rolling": (0.2, 12), "hvac_deadband": (6, 30),
 }
 """Share of the completed model's energy that the concealed term carries, per single-term
 case at DURATION_S [%] (|E_completed - E_scenario| / E_completed). Inertia, regen and wind
@@ -105,11 +105,12 @@ def completed_powers(case):
         moving = np.flatnonzero(frame["v_mps"].to_numpy() > 0)
         airborne = (np.arange(len(t)) >= moving[0]) & (np.arange(len(t)) <= moving[-1])
         power = power + truth["hover"]["hover_W"] * airborne
-    if "hvac" in truth or "hvac_trip" in truth:
+    hvac = next((truth[k] for k in ("hvac", "hvac_trip", "hvac_deadband") if k in truth), None)
+    if hvac is not None:  # heating below its set-point, cooling above its own (both 20 C)
         ambient = frame["ambient_C"].to_numpy(float)
-        h = truth.get("hvac") or truth["hvac_trip"]
-        power = power + (h.get("hvac_heat_W_per_K", 0.0) * np.maximum(0, 20 - ambient)
-                         + h.get("hvac_cool_W_per_K", 0.0) * np.maximum(0, ambient - 20))
+        heat_C, cool_C = hvac.get("hvac_heat_below_C", 20.0), hvac.get("hvac_cool_above_C", 20.0)
+        power = power + (hvac.get("hvac_heat_W_per_K", 0.0) * np.maximum(0, heat_C - ambient)
+                         + hvac.get("hvac_cool_W_per_K", 0.0) * np.maximum(0, ambient - cool_C))
     if "battery_resistance" in truth:
         power = power + truth["battery_resistance"]["battery_loss_per_W"] * power**2
     if "battery_temperature" in truth:
@@ -244,10 +245,15 @@ def test_surface_route_drives_on_and_off_its_surface(suite, name):
 def test_conditions_columns_vary_and_are_not_monotone(suite):
     for name, case in suite.items():
         ambient = case.frame["ambient_C"].to_numpy()
-        least_span = 2.9 if name == "hvac_trip" else 20  # a trip's few kelvin, a season's 35
+        # a trip's few kelvin, a day across a dead band's, a season's 35
+        least_span = {"hvac_trip": 2.9, "hvac_deadband": 7.9}.get(name, 20)
         assert ambient.min() >= 0 and ambient.max() <= 35 and np.ptp(ambient) > least_span, name
         if name == "hvac_trip":
             assert np.ptp(ambient) <= 10.1, name
+        if name == "hvac_deadband":  # past both set-points by 3-6 K
+            h = case.truth["hvac_deadband"]
+            assert 2.9 <= h["hvac_heat_below_C"] - ambient.min() <= 6.1, name
+            assert 2.9 <= ambient.max() - h["hvac_cool_above_C"] <= 6.1, name
         steps = np.sign(np.diff(ambient))
         assert (steps > 0).any() and (steps < 0).any(), name
     rates = suite["sensor_rate"].frame["sensor_rate_Hz"]

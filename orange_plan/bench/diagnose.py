@@ -51,7 +51,8 @@ TEST_SEEDS = (0, 1)
 """Seeds the test suite uses (tests/test_diagnose_concealed.py); the benchmark's default
 seeds are disjoint from them."""
 BENCH_SEEDS = (101, 102, 103)
-ORACLE_CANDIDATE = {"hvac": "hvac_ambient", "hvac_trip": "hvac_ambient"}
+ORACLE_CANDIDATE = {"hvac": "hvac_ambient", "hvac_trip": "hvac_ambient",
+                    "hvac_deadband": "hvac_ambient"}
 """The candidate with a concealed term's true form where it is not the term's own id (the
 generator's hvac follows ``ambient_C``; no HVAC meter is recorded)."""
 

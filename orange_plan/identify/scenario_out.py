@@ -42,7 +42,7 @@ from orange_plan.errors import InputError, OrangeError
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.model_builder import LUMPED, build_model, physical_values
 from orange_plan.physics.terms import TERMS
-from orange_plan.scenario import DRIFT_TERMS, MODEL_EXTRA_TERMS, load_scenario
+from orange_plan.scenario import DRIFT_TERMS, HVAC_SETPOINT_KEYS, MODEL_EXTRA_TERMS, load_scenario
 
 WRITTEN_BACK = tuple(row.physical for row in LUMPED.values()
                     if row.physical is not None and row.physical.startswith(("robot.", "ancillary.")))
@@ -83,6 +83,9 @@ def calibrated_scenario_dict(scenario, model: EnergyModel, out_dir: Path,
         if drift.shape != TERMS[drift.id].shape:  # the shape diagnosis chose
             for key, value in zip(("shape", "tau_s", "from_s"), drift.shape):
                 table[f"{drift.id}_{key}"] = value
+    hvac = next((t for t in model.terms if t.id == "hvac_ambient"), None)
+    if hvac is not None and hvac.shape != TERMS["hvac_ambient"].shape:  # fitted set-points
+        table.update(zip(HVAC_SETPOINT_KEYS, hvac.shape))
     table.update({k: float(v) for k, v in theta.items()})
     table["stderr"] = {**table.get("stderr", {}), **{k: float(v) for k, v in sd.items()}}
     data["model"] = table

@@ -30,6 +30,7 @@ from orange_plan.physics.terms import (
     Term,
     drift_rolling_term,
     drift_term,
+    hvac_ambient_term,
     surface_rolling_term,
 )
 
@@ -253,8 +254,9 @@ def build_model(scenario, surface_names: Sequence[str] = (), extra_terms=None) -
     ids = reference_term_ids(scenario) + [t for t in extras if t != "surface_rolling"]
     if "surface_rolling" in extras and surface_names:
         ids.insert(ids.index("rolling") + 1 if "rolling" in ids else 1, "surface_rolling")
-    shaped = {"drift": (drift_term, spec.drift), "drift_rolling": (drift_rolling_term,
-                                                                   spec.drift_rolling)}
+    shaped = {"drift": (drift_term, spec.drift),
+              "drift_rolling": (drift_rolling_term, spec.drift_rolling),
+              "hvac_ambient": (hvac_ambient_term, spec.hvac_ambient)}
     terms = [shaped[t][0](*shaped[t][1]) if t in shaped and shaped[t][1]
              else make_term(t, surface_names) for t in ids]
     theta = {name: spec.coefficients.get(name, reference_value(name, scenario))

@@ -58,7 +58,9 @@ class Term:
     feature : ``feature(state) -> tuple`` of one feature per coefficient
     description : one line for the documentation and reports
     channels : the ``MotionState.channels`` the feature reads (beyond the motion fields)
-    shape : a ``drift``'s ``(shape, tau_s, from_s)`` (``drift_term``); () for every other term
+    shape : a ``drift``'s ``(shape, tau_s, from_s)`` (``drift_term``), an ``hvac_ambient``'s
+        set-points ``(heat_below_C, cool_above_C)`` (``hvac_ambient_term``); () for every
+        other term
     """
 
     id: str
@@ -311,17 +313,46 @@ BATTERY_C = Channel("battery_C", -90.0, 150.0, "battery cell temperature; in pla
                     "scenario's ambient_C [degC]")
 
 
-def hvac_ambient_feature(state: MotionState):
-    """Degrees below and above the HVAC setpoint: ``(max(0, T_set - T), max(0, T - T_set))``
-    [K], T the ambient temperature, T_set = HVAC_SETPOINT_C.
+HVAC_SETPOINT_RANGE_C = (5.0, 35.0)
+"""Set-points a climate control may hold [degC]: the range diagnosis scans, and the range a
+scenario's ``hvac_ambient_heat_below_C`` / ``hvac_ambient_cool_above_C`` must lie in."""
+
+
+def hvac_ambient_feature(heat_below_C: float = HVAC_SETPOINT_C,
+                         cool_above_C: float = HVAC_SETPOINT_C):
+    """The heating and cooling features of a climate control that heats below
+    ``heat_below_C`` and cools above ``cool_above_C`` (a dead band between them, none when
+    they are equal): ``(max(0, T_heat - T), max(0, T - T_cool))`` [K], T the ambient
+    temperature.
 
     With no HVAC meter, the heating and cooling draw follow the temperature difference the
-    climate control works against (heat flow through the enclosure ~ UA (T_set - T)).
-    Coefficients ``hvac_heat_W_per_K``, ``hvac_cool_W_per_K`` [W/K] (battery side).
+    climate control works against (heat flow through the enclosure ~ UA (T_set - T)); inside
+    the dead band neither runs. Coefficients ``hvac_heat_W_per_K``, ``hvac_cool_W_per_K``
+    [W/K] (battery side).
     """
-    temp = state.channel(AMBIENT_C.name)
-    return (_per_sample(ops.fmax(HVAC_SETPOINT_C - temp, 0.0), state),
-            _per_sample(ops.fmax(temp - HVAC_SETPOINT_C, 0.0), state))
+    lo, hi = HVAC_SETPOINT_RANGE_C
+    if not (lo <= heat_below_C <= cool_above_C <= hi):
+        raise InputError(f"an HVAC needs {lo:g} <= heat_below_C <= cool_above_C <= {hi:g} "
+                         f"degC, got {heat_below_C!r} and {cool_above_C!r}")
+
+    def feature(state: MotionState):
+        temp = state.channel(AMBIENT_C.name)
+        return (_per_sample(ops.fmax(heat_below_C - temp, 0.0), state),
+                _per_sample(ops.fmax(temp - cool_above_C, 0.0), state))
+
+    return feature
+
+
+def hvac_ambient_term(heat_below_C: float = HVAC_SETPOINT_C,
+                      cool_above_C: float = HVAC_SETPOINT_C) -> Term:
+    """The ``hvac_ambient`` term of a climate control with these set-points
+    (``hvac_ambient_feature``); ``hvac_ambient_term()`` is the vocabulary's, holding
+    HVAC_SETPOINT_C with no dead band. Its ``shape`` is ``(heat_below_C, cool_above_C)``."""
+    return Term("hvac_ambient", "power", ("hvac_heat_W_per_K", "hvac_cool_W_per_K"),
+                hvac_ambient_feature(heat_below_C, cool_above_C),
+                f"heating below {heat_below_C:g} C / cooling above {cool_above_C:g} C, "
+                "following the ambient temperature (no HVAC meter)",
+                (AMBIENT_C,), (float(heat_below_C), float(cool_above_C)))
 
 
 def battery_resistance_feature(state: MotionState):
@@ -374,10 +405,7 @@ TERMS: dict[str, Term] = {
              "extra power at a cold start, decaying with time constant DRIFT_TAU_S",
              (ELAPSED_S,), ("decay", DRIFT_TAU_S, 0.0)),
         drift_rolling_term(),
-        Term("hvac_ambient", "power", ("hvac_heat_W_per_K", "hvac_cool_W_per_K"),
-             hvac_ambient_feature,
-             "heating / cooling power following the ambient temperature (no HVAC meter)",
-             (AMBIENT_C,)),
+        hvac_ambient_term(),
         Term("battery_resistance", "battery", ("battery_loss_per_W",),
              battery_resistance_feature,
              "I^2 R loss inside the battery: delivered power P (1 + B P), B = R / V^2"),

@@ -28,7 +28,8 @@ How a case is made
    ``hover`` adds 30-60 s landed at rest (ancillary only) at both ends.
 3. Effects with no Term, as post-processing of the true power P [W]:
    ``hvac``: ``P += hvac_heat_W_per_K max(0, 20 - T_a) + hvac_cool_W_per_K max(0, T_a - 20)``
-   (setpoint 20 C, T_a the ``ambient_C`` column);
+   (setpoint 20 C, T_a the ``ambient_C`` column; ``hvac_deadband``: heating below 15-21 C
+   and cooling above a set-point 2-6 K higher);
    ``battery_resistance``: ``P += k P^2`` (I^2 R at I = P / V: k = R / V^2 [1/W]);
    ``battery_temperature``: ``P += c max(0, 25 - T_b) P^2`` (T_b the ``battery_C`` column).
    The battery losses come last (they act on everything the battery delivers), and their
@@ -98,12 +99,15 @@ CONCEALABLE: tuple[str, ...] = (
     "ancillary", "sensor_rate", "hover", "rolling", "surface_rolling", "aero_drag", "grade",
     "inertia", "regen", "turning", "wind", "payload", "hvac", "battery_resistance",
     "battery_temperature", "drift", "surface_label", "hvac_trip", "drift_rolling",
+    "hvac_deadband",
 )
 """Vocabulary ids a case can conceal, and two variants: ``surface_label``, per-surface
 rolling on a map without surfaces, the recording carrying a terrain classifier's delayed
 ``surface`` labels (reported as ``surface_rolling``); ``hvac_trip``, the ``hvac`` effect on a
 trip whose ambient temperature spans only 3-10 K (reported as ``hvac``); ``drift_rolling``,
-the rolling coefficient changing through the run (reported as ``drift``)."""
+the rolling coefficient changing through the run (reported as ``drift``); ``hvac_deadband``,
+the ``hvac`` effect of a climate control that heats below one set-point and cools above a
+higher one (reported as ``hvac``)."""
 
 PAIRS: tuple[tuple[str, str], ...] = (
     ("turning", "payload"), ("wind", "payload"), ("surface_rolling", "battery_resistance"),
@@ -120,6 +124,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "battery_resistance": ("ground", "aerial"), "battery_temperature": ("ground", "aerial"),
     "drift": ("ground", "aerial", "marine"), "surface_label": ("ground",),
     "hvac_trip": ("ground", "aerial"), "drift_rolling": ("ground",),
+    "hvac_deadband": ("ground", "aerial"),
 }
 """Robot kinds each term can be concealed on; the first is the default. (Ground drag at the
 Kiwibot's 1.2 m/s is under 1 % of its power: too small to conceal. On the drone, a concealed

@@ -195,21 +195,27 @@ def _hvac(plan: _Plan, rng) -> None:
     plan.power_effects.append(_hvac_adder("hvac", mode, share))
 
 
-def _hvac_adder(key: str, mode: str, share: float, least_K: float = 0.0) -> Callable:
-    """The power effect of heating and / or cooling (``mode``) drawing ``share`` of the mean
-    power together; truth under ``key``. Only a side the ambient reaches by more than
-    ``least_K`` on average works (a trip that never drops below the setpoint does not heat;
-    at least the side it reaches most)."""
+def _hvac_adder(key: str, mode: str, share: float, least_K: float = 0.0,
+                heat_below_C: float = HVAC_SETPOINT_C,
+                cool_above_C: float = HVAC_SETPOINT_C) -> Callable:
+    """The power effect of heating below ``heat_below_C`` and / or cooling above
+    ``cool_above_C`` (``mode``) drawing ``share`` of the mean power together; truth under
+    ``key`` (with the set-points where they are not the vocabulary's one). Only a side the
+    ambient reaches by more than ``least_K`` on average works (a trip that never drops below
+    the set-point does not heat; at least the side it reaches most)."""
 
     def add(p, frame, power, _rng):
         t_c = frame["ambient_C"].to_numpy(float)
-        feats = {"hvac_heat_W_per_K": np.maximum(0.0, HVAC_SETPOINT_C - t_c),
-                 "hvac_cool_W_per_K": np.maximum(0.0, t_c - HVAC_SETPOINT_C)}
+        feats = {"hvac_heat_W_per_K": np.maximum(0.0, heat_below_C - t_c),
+                 "hvac_cool_W_per_K": np.maximum(0.0, t_c - cool_above_C)}
         chosen = [k for k in feats if (mode == "both" or k.startswith(f"hvac_{mode}"))
                   and float(np.mean(feats[k])) > least_K]
         chosen = chosen or [max(feats, key=lambda k: float(np.mean(feats[k])))]
         target_W = share * float(np.mean(power)) / len(chosen)
         p.truth[key] = {k: target_W / max(float(np.mean(feats[k])), 1e-3) for k in chosen}
+        if (heat_below_C, cool_above_C) != (HVAC_SETPOINT_C, HVAC_SETPOINT_C):
+            p.truth[key].update(hvac_heat_below_C=float(heat_below_C),
+                                hvac_cool_above_C=float(cool_above_C))
         return power + sum(p.truth[key][k] * feats[k] for k in chosen)
 
     return add
@@ -240,6 +246,22 @@ def _hvac_trip(plan: _Plan, rng) -> None:
     plan.ambient_C = (float(low), float(low + span))
     plan.power_effects.append(_hvac_adder("hvac_trip", "both", rng.uniform(0.08, 0.30),
                                           least_K=0.5))
+
+
+HVAC_DEADBAND_K = (2.0, 6.0)
+"""Range of the dead band of an ``hvac_deadband`` case's climate control [K]: it heats below
+one set-point and cools above a higher one."""
+
+
+def _hvac_deadband(plan: _Plan, rng) -> None:
+    """``hvac`` of a climate control with a dead band: heating below 15-21 C, cooling above
+    2-6 K higher, on a day whose ambient runs 3-6 K past both (a walk over 8-18 K). Fitted at
+    one set-point, such a control's heating and cooling come out far too low."""
+    heat = rng.uniform(15.0, 21.0)
+    cool = heat + rng.uniform(*HVAC_DEADBAND_K)
+    plan.ambient_C = (float(heat - rng.uniform(3.0, 6.0)), float(cool + rng.uniform(3.0, 6.0)))
+    plan.power_effects.append(_hvac_adder("hvac_deadband", "both", rng.uniform(0.08, 0.30),
+                                          least_K=0.5, heat_below_C=heat, cool_above_C=cool))
 
 
 def _battery_resistance(plan: _Plan, rng) -> None:
@@ -359,6 +381,7 @@ RECIPES: dict[str, Callable[[_Plan, np.random.Generator], None]] = {
     "payload": _payload, "hvac": _hvac, "battery_resistance": _battery_resistance,
     "battery_temperature": _battery_temperature, "drift": _drift,
     "surface_label": _surface_label, "hvac_trip": _hvac_trip, "drift_rolling": _drift_rolling,
+    "hvac_deadband": _hvac_deadband,
 }
 
 

@@ -17,6 +17,7 @@ from orange_plan.identify.diagnosis.design import (
 from orange_plan.identify.diagnosis.effects import (
     _drift_effect,
     _drift_rolling_effect,
+    _hvac_ambient_effect,
     _needs_mass,
     _payload_effect,
     _surface_effect,
@@ -175,7 +176,7 @@ _FEATURES: dict[str, tuple[Callable, str]] = {
 def candidates() -> list[Candidate]:
     """Every candidate diagnosis tries (the method: ``identify.diagnosis``)."""
     special = {"surface_rolling": _surface_effect, "drift": _drift_effect,
-               "drift_rolling": _drift_rolling_effect}
+               "drift_rolling": _drift_rolling_effect, "hvac_ambient": _hvac_ambient_effect}
     out = [Candidate(t, _applies_term(t, _NEEDS.get(t)), special.get(t) or _term_effect(t),
                      _feature(*_FEATURES[t])) for t in TERM_CANDIDATES]
     out.append(Candidate("payload", _needs_mass, _payload_effect, _feature(*_FEATURES["payload"])))

@@ -124,6 +124,9 @@ class Effect:
     lower, upper : their physical bounds
     extra : non-linear parameters estimated on the training rows (payload time, wind) with
         their standard errors: name -> (value, sd)
+    sd_scale : per linear coefficient, the factor its standard error grows by once the
+        uncertainty of the non-linear parameters it was fitted at is counted (None: 1; an
+        HVAC's set-points, ``effects._hvac_ambient_effect``)
     """
 
     columns: np.ndarray
@@ -131,6 +134,7 @@ class Effect:
     lower: np.ndarray
     upper: np.ndarray
     extra: dict = field(default_factory=dict)
+    sd_scale: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -160,8 +160,10 @@ def _reference(d: Design, chosen: list[Candidate], new: list[Candidate], current
 
 def _goes_inside(cand: Candidate) -> bool:
     """Whether ``polish`` puts a chosen candidate inside the model (a term; not hover, whose
-    column idles when landed, nor a drift, whose shape is the candidate's)."""
-    return ((cand.id in TERMS and cand.id not in ("hover", "drift", "drift_rolling"))
+    column idles when landed, nor a drift or an HVAC on the ambient, whose shape or
+    set-points are the candidate's)."""
+    return ((cand.id in TERMS
+             and cand.id not in ("hover", "drift", "drift_rolling", "hvac_ambient"))
             or cand.id in ("surface_rolling", LABEL_CANDIDATE))
 
 
@@ -182,7 +184,7 @@ def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
     s2 = float(np.mean(resid**2))
     gram = x.T @ x + np.diag(np.r_[d.prior_weight, np.zeros(x.shape[1] - p)])
     cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * _sd_scales(d, chosen)
     fold_ss = np.bincount(d.fold, (d.y - held) ** 2, minlength=d.settings.n_folds)
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
                float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x)
@@ -210,6 +212,17 @@ def _stack(d: Design, chosen, rows):
     return (np.hstack([d.columns, *(e.columns for e in effects)]),
             np.concatenate([d.lower, *(e.lower for e in effects)]),
             np.concatenate([d.upper, *(e.upper for e in effects)]), names, extra)
+
+
+def _sd_scales(d: Design, chosen) -> np.ndarray:
+    """Each coefficient's ``Effect.sd_scale`` (1 for the baseline's) in ``_stack``'s order,
+    from the effects fitted on every row."""
+    rows_key = hash(np.packbits(np.ones(d.n, bool)).tobytes())
+    scales = [np.ones(d.columns.shape[1])]
+    for k, cand in enumerate(chosen):
+        eff = d.cache[("effect", cand.id, tuple(c.id for c in chosen[:k]), rows_key)]
+        scales.append(np.ones(len(eff.names)) if eff.sd_scale is None else eff.sd_scale)
+    return np.concatenate(scales)
 
 
 def _residual_without(d: Design, effects, rows) -> np.ndarray:

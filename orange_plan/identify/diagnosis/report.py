@@ -23,6 +23,7 @@ from orange_plan.identify.diagnosis.selection import Trial, _rivals, judge
 from orange_plan.identify.locate import quarters
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.model_builder import SURFACE_PREFIX, make_term, with_payload
+from orange_plan.physics.terms import hvac_ambient_term
 from orange_plan.physics.wind import wind_speed_and_from
 
 AS_GOOD_HELD_OUT = "as good held out"
@@ -243,6 +244,15 @@ def _share_of_mean(d: Design, power_W: float) -> str:
 # --- the model with the findings ----------------------------------------------------------------
 
 
+def _found_term(term_id: str, own: dict, surface_names):
+    """The term a finding names, with the shape or set-points it was found at."""
+    if term_id in ("drift", "drift_rolling"):
+        return _drift_term_of(own, term_id)
+    if term_id == "hvac_ambient":
+        return hvac_ambient_term(own["hvac_heat_below_C"], own["hvac_cool_above_C"])
+    return make_term(term_id, surface_names)
+
+
 def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
                    findings: list[Finding]) -> tuple[EnergyModel, dict]:
     """The baseline's terms plus the found terms, at the polished fit's coefficients, and
@@ -274,8 +284,7 @@ def improved_model(d: Design, chosen: list[Candidate], fit: Fit,
             changes["environment.wind_speed_mps"] = float(speed)
             changes["environment.wind_from_deg"] = float(from_deg) % 360.0
         else:
-            term = (_drift_term_of(own, cand.id) if cand.id in ("drift", "drift_rolling")
-                    else make_term(cand.id, names))
+            term = _found_term(cand.id, own, names)
             # surface_rolling stands right after rolling (model_builder's order)
             at = [t.id for t in terms].index("rolling") + 1 if term.id == "surface_rolling" \
                 else len(terms)

@@ -39,8 +39,8 @@ class DiagnosisSettings:
         fitted to it would be a heading-dependent fluke (a slope met in one direction)
         scaled up to gale force
     max_wind_mps : largest wind (or water current) a finding may claim [m/s]
-    scanned : candidates whose change time (a payload's), delay (a surface label's) or shape
-        (a drift's) is the best of a scan: the largest of the scan's t statistics is itself
+    scanned : candidates whose change time (a payload's), delay (a surface label's), shape
+        (a drift's) or set-points (an HVAC's) is the best of a scan: the largest of the scan's t statistics is itself
         large, so their t must exceed ``min_t`` by the scan's typical maximum. Neighbouring
         change times give nearly the same statistic (a standardised CUSUM), so that maximum
         grows like sqrt(2 ln ln n_eff) (Darling-Erdos), not like the sqrt(2 ln n_eff) of
@@ -73,6 +73,8 @@ class DiagnosisSettings:
     drift_taus_s : time constants a drift's ``decay`` is tried at [s]
     drift_step_times : change times a drift's ``step`` is tried at, evenly over 5-95 % of
         the run [-]
+    hvac_setpoint_step_K : spacing of the set-points an ``hvac_ambient``'s heating and
+        cooling are tried at, over physics.terms.HVAC_SETPOINT_RANGE_C [K]
     payload_step_spread : largest spread (peak to peak, a share of its mean) of the power per
         kg of mass at which a drift's step is a payload's [-]
     """
@@ -86,7 +88,8 @@ class DiagnosisSettings:
     inflation_block_s: float = 120.0
     min_drag_share: float = 0.02
     max_wind_mps: float = 30.0
-    scanned: frozenset[str] = frozenset({"payload", "surface_label", "drift", "drift_rolling"})
+    scanned: frozenset[str] = frozenset({"payload", "surface_label", "drift", "drift_rolling",
+                                     "hvac_ambient"})
     rivals: int = 4
     max_label_lag_s: float = 5.0
     label_windows_s: tuple[float, ...] = (0.0, 2.0, 4.0, 8.0)
@@ -99,6 +102,7 @@ class DiagnosisSettings:
     drift_taus_s: tuple[float, ...] = (300.0, 600.0, 1200.0, 2400.0, 4800.0)
     drift_step_times: int = 37
     payload_step_spread: float = 0.01
+    hvac_setpoint_step_K: float = 0.25
 
 
 DEFAULT_SETTINGS = DiagnosisSettings()
