@@ -23,7 +23,7 @@ from orange_plan.identify.diagnosis.selection import Trial, _rivals, judge
 from orange_plan.identify.locate import quarters
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.model_builder import SURFACE_PREFIX, make_term, with_payload
-from orange_plan.physics.terms import hvac_ambient_term
+from orange_plan.physics.terms import HVAC_SETPOINT_C, hvac_ambient_term
 from orange_plan.physics.wind import wind_speed_and_from
 
 AS_GOOD_HELD_OUT = "as good held out"
@@ -249,7 +249,8 @@ def _found_term(term_id: str, own: dict, surface_names):
     if term_id in ("drift", "drift_rolling"):
         return _drift_term_of(own, term_id)
     if term_id == "hvac_ambient":
-        return hvac_ambient_term(own["hvac_heat_below_C"], own["hvac_cool_above_C"])
+        return hvac_ambient_term(own.get("hvac_heat_below_C", HVAC_SETPOINT_C),
+                                 own.get("hvac_cool_above_C", HVAC_SETPOINT_C))
     return make_term(term_id, surface_names)
 
 
