@@ -101,6 +101,40 @@ def test_joined_path_marks_its_lanes(yard):
     assert seg[lane].sum() == pytest.approx(sum(np.hypot(*(p[1] - p[0])) for p in pieces))
 
 
+class _NoWayHomeFrom:
+    """A roadmap that finds no way home from the given points (a lane's end hemmed in by
+    walls) and the straight line from anywhere else."""
+
+    def __init__(self, blocked):
+        self.blocked = [np.asarray(b, float) for b in blocked]
+
+    def segments_free(self, a, b):
+        return np.ones(len(np.atleast_2d(a)), bool)
+
+    def path(self, a, b):
+        if any(np.allclose(a, x) for x in self.blocked):
+            return None
+        return np.array([a, b], float)
+
+
+def test_a_lane_end_with_no_roadmap_way_home_drives_back_along_the_route():
+    """The last piece ends where the roadmap finds no way home: the route goes back along
+    itself to the latest vertex with one, and still ends at home."""
+    from orange_plan.planning.lawnmower import join_pieces
+
+    home = np.array([0.0, 0.0])
+    pieces = [np.array([[1.0, 0.0], [1.0, 5.0]]), np.array([[2.0, 5.0], [2.0, 0.0]])]
+    xy, lane, driven, _ = join_pieces(home, pieces, _NoWayHomeFrom([[2.0, 0.0], [2.0, 5.0]]))
+    assert driven == 2 and np.allclose(xy[0], home) and np.allclose(xy[-1], home)
+    # back over the second lane and the join, then the roadmap's way from the first's end
+    assert np.allclose(xy[-4:], [[2.0, 0.0], [2.0, 5.0], [1.0, 5.0], home])
+    assert lane.shape == (len(xy) - 1,) and lane.sum() == 2
+    # nowhere a way home but from home itself: the whole route backwards
+    xy, _, _, _ = join_pieces(home, pieces, _NoWayHomeFrom([[2.0, 0.0], [2.0, 5.0],
+                                                            [1.0, 5.0], [1.0, 0.0]]))
+    assert np.allclose(xy[-1], home) and len(xy) == 9
+
+
 def test_best_angle_runs_along_the_long_side(tmp_path):
     ctx = load_context(write_world(tmp_path, width_m=60, height_m=12, home=(2.0, 2.0)))
     lawn = plan_lawnmower(ctx, prepare_reach(ctx, n_vertices=200))

@@ -254,20 +254,33 @@ def straight_route(home_xy, pieces) -> tuple[np.ndarray, np.ndarray]:
     return xy, lane
 
 
+def retrace_home(route_xy, detours: Detours) -> np.ndarray:
+    """A way home from the end of ``route_xy`` (home first) when the roadmap has none from
+    there: back along the route to the latest vertex the roadmap reaches home from, then
+    the roadmap's path (the whole route backwards at worst: every segment of it was free).
+    A lane's end a few centimetres from a wall, between two obstacles, can have no roadmap
+    vertex in sight among its nearest, though the lane itself came there.
+
+    Returns the vertices end -> ... -> home (m, 2) [m]."""
+    route = np.asarray(route_xy, float)
+    home = route[0]
+    for k in range(len(route) - 2, 0, -1):
+        ahead = detours.path(route[k], home)
+        if ahead is not None:
+            return np.vstack([route[k:][::-1], ahead[1:]])
+    return route[::-1]
+
+
 def join_pieces(home_xy, pieces, detours: Detours):
     """home -> pieces -> home with collision-free joins (straight, else a roadmap detour).
 
-    A piece that cannot be reached is skipped.
+    A piece that cannot be reached is skipped. Where the roadmap has no way home from the
+    last piece's end, the route is driven back (``retrace_home``).
 
     Returns
     -------
     (xy, lane, driven, n_detours): vertices (n, 2) [m]; per segment (n - 1,), True on a lane;
     pieces driven; joins that needed a detour.
-
-    Raises
-    ------
-    PlanningError
-        If the way back home cannot be found.
     """
     home = np.asarray(home_xy, float)
     out, flags = [home[None]], [np.zeros(1, bool)]
@@ -290,7 +303,7 @@ def join_pieces(home_xy, pieces, detours: Detours):
         cur, driven = piece[1], driven + 1
     back = detours.path(cur, home)
     if back is None:
-        raise PlanningError(f"no way home from ({cur[0]:g}, {cur[1]:g}) over the roadmap")
+        back = retrace_home(np.vstack(out), detours)
     out.append(back[1:])
     flags.append(np.zeros(len(back) - 1, bool))
     xy, flag = np.vstack(out), np.concatenate(flags)
