@@ -335,8 +335,7 @@ def _hvac_autocorrelation(d: Design, resid, rows, grid, fall) -> float:
     (a dead band at 16.7 / 20.8 C stayed at 20 C, its heating 15 % low)."""
     i, j = np.unravel_index(np.argmax(fall), fall.shape)
     temp = d.frame["ambient_C"].to_numpy(float)
-    scale = (d.columns[:, d.base.names.index("ancillary_W")] if "ancillary_W" in d.base.names
-             else np.ones(d.n))
+    scale = _battery_side_scale(d)
     x = np.column_stack([d.columns, scale * np.maximum(grid[i] - temp, 0.0),
                          scale * np.maximum(temp - grid[j], 0.0)])
     beta = np.linalg.lstsq(x[rows], resid[rows] + d.columns[rows] @ d.base.theta, rcond=None)[0]
@@ -376,8 +375,7 @@ def _hvac_joint_sd(d: Design, resid, rows, columns, setpoints, noise: float):
     a, b = theta[-2:]
     x = np.hstack([d.columns[rows], columns[rows]])
     temp = d.frame["ambient_C"].to_numpy(float)[rows]
-    scale = (d.columns[rows, d.base.names.index("ancillary_W")]
-             if "ancillary_W" in d.base.names else np.ones(temp.size))
+    scale = _battery_side_scale(d)[rows]
     heat, cool = setpoints
     slopes = [(a, a * scale * (temp < heat)), (b, -b * scale * (temp > cool))]
     active = [k for k, (coef, col) in enumerate(slopes) if coef > 0 and np.any(col)]
@@ -397,13 +395,21 @@ def _hvac_joint_sd(d: Design, resid, rows, columns, setpoints, noise: float):
     return sd, np.maximum(ratio, 1.0)
 
 
+def _battery_side_scale(d: Design) -> np.ndarray:
+    """Per sample, what a battery-side power of 1 W costs the battery: ``1 + 2 B P`` with the
+    in-battery loss, which the baseline's constant load (``ancillary_W``) column carries (1
+    without one) [-]."""
+    if "ancillary_W" not in d.base.names:
+        return np.ones(d.n)
+    return d.columns[:, d.base.names.index("ancillary_W")]
+
+
 def _hvac_scan(d: Design, resid, rows, grid) -> np.ndarray:
     """The fall of the training rows' residual sum of squares for each pair of set-points
     (heating below grid[i], cooling above grid[j]); -inf where i > j.
 
     A heating column ``s (T_h - T)`` on the samples colder than ``T_h`` (``s`` the
-    in-battery loss's scale ``1 + 2 B P`` of a battery-side power, which the baseline's
-    constant load column carries) has every inner product the fit needs (with itself, the
+    battery side's scale, ``_battery_side_scale``) has every inner product the fit needs (with itself, the
     residual and the baseline's orthonormal basis Q) as a polynomial in ``T_h`` over the
     samples sorted by temperature: cumulative sums give all set-points at once, as a
     payload's change times are scanned. Cooling is the same over the warmer samples; the two
@@ -411,8 +417,7 @@ def _hvac_scan(d: Design, resid, rows, grid) -> np.ndarray:
     leaves out the fraction of a sample the model's columns are delayed by (the ambient
     changes over minutes); the chosen pair's columns have it."""
     temp = d.frame["ambient_C"].to_numpy(float)[rows]
-    scale = (d.columns[rows, d.base.names.index("ancillary_W")]
-             if "ancillary_W" in d.base.names else np.ones(temp.size))
+    scale = _battery_side_scale(d)[rows]
     q = _column_basis(d.columns[rows])
     order = np.argsort(temp, kind="stable")
     t, s, r, q = temp[order], scale[order], resid[rows][order], q[order]
