@@ -21,7 +21,11 @@ deterministically so the bound cannot flake) may be called infeasible.
 
 from __future__ import annotations
 
+import multiprocessing
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,8 +59,9 @@ MISSED_MAX = 0.15
 examples: 7 of 121 (6 %), 5 of 117 with 1000 vertices)."""
 
 
-@pytest.mark.timeout(240)
-def test_feasible_goals_fit_match_exact_energy_and_few_are_missed(tmp_path_factory):
+def _clear_and_missed(folder: str) -> dict:
+    """Every drawn example checked in this process (worlds written under ``folder``); the
+    tally of clearly feasible goals and of those reach called infeasible."""
     tally = {"clear": 0, "missed": 0}
 
     @settings(max_examples=25, deadline=None, database=None, derandomize=True,
@@ -64,7 +69,7 @@ def test_feasible_goals_fit_match_exact_energy_and_few_are_missed(tmp_path_facto
     @given(case=worlds(), seed=st.integers(0, 1000))
     def check(case, seed):
         spec, goals = case
-        ctx = load_context(write_world(tmp_path_factory.mktemp("prop"), **spec))
+        ctx = load_context(write_world(Path(tempfile.mkdtemp(dir=folder)), **spec))
         reach = prepare_reach(ctx, n_vertices=300, seed=seed)
         world, exact = ctx.world, reach.exact
         grid = grid_graph(exact, GRID_M, 16, origin_xy=(0.0, 0.0))
@@ -102,5 +107,16 @@ def test_feasible_goals_fit_match_exact_energy_and_few_are_missed(tmp_path_facto
             assert used + min(true_J, exact_J) + reserve <= reach.energy_available_J
 
     check()
+    return tally
+
+
+@pytest.mark.timeout(240)
+def test_feasible_goals_fit_match_exact_energy_and_few_are_missed(tmp_path):
+    """Counted in a fresh process: OMPL takes a random seed only before the first random
+    number of its process, so in a test worker each roadmap depends on what ran there before
+    (the same examples missed 11 of 60 goals after other tests, 9 or fewer alone)."""
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(1, mp_context=spawn) as pool:
+        tally = pool.submit(_clear_and_missed, str(tmp_path)).result()
     assert tally["clear"] >= 30, tally
     assert tally["missed"] <= MISSED_MAX * tally["clear"], tally
