@@ -12,11 +12,9 @@ import pandas as pd
 
 from orange_plan.physics.model import EnergyModel
 from orange_plan.physics.state import MotionState
-from orange_plan.physics.terms import TERMS, drift_term
+from orange_plan.physics.terms import HVAC_SETPOINT_C, TERMS, drift_term, hvac_ambient_feature
 from orange_plan.sim.truth import Wind
 
-HVAC_SETPOINT_C = 20.0
-"""Cabin / enclosure setpoint of the hvac effect [C]."""
 BATTERY_WARM_C = 25.0
 """Battery temperature above which the cold loss vanishes [C]."""
 SENSOR_RATES_HZ = (5.0, 10.0, 20.0, 30.0)
@@ -206,8 +204,10 @@ def _hvac_adder(key: str, mode: str, share: float, least_K: float = 0.0,
 
     def add(p, frame, power, _rng):
         t_c = frame["ambient_C"].to_numpy(float)
-        feats = {"hvac_heat_W_per_K": np.maximum(0.0, heat_below_C - t_c),
-                 "hvac_cool_W_per_K": np.maximum(0.0, t_c - cool_above_C)}
+        state = MotionState(speed_mps=np.ones(t_c.size), channels={"ambient_C": t_c})
+        heating, cooling = hvac_ambient_feature(heat_below_C, cool_above_C)(state)
+        feats = {"hvac_heat_W_per_K": np.asarray(heating, float),
+                 "hvac_cool_W_per_K": np.asarray(cooling, float)}
         chosen = [k for k in feats if (mode == "both" or k.startswith(f"hvac_{mode}"))
                   and float(np.mean(feats[k])) > least_K]
         chosen = chosen or [max(feats, key=lambda k: float(np.mean(feats[k])))]

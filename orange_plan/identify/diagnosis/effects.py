@@ -22,6 +22,7 @@ from orange_plan.physics.terms import (
     drift_rolling_term,
     drift_shape_feature,
     drift_term,
+    hvac_ambient_feature,
     hvac_ambient_term,
 )
 from orange_plan.physics.wind import wind_speed_and_from
@@ -291,28 +292,30 @@ def _hvac_ambient_effect(d: Design, resid, rows) -> Effect:
     judged by their parts orthogonal to the baseline's columns (``_hvac_scan``), with both
     coefficients kept at or above 0 (a climate control that only heats, or only cools, is a
     pair with one coefficient at 0), and a set-point moved off 20 C only where the
-    information criterion says the fit earns it (``_hvac_choice``). A climate control with a dead band (heating below 18 C,
-    cooling above 24 C), fitted at one 20 C set-point, came out with its heating 21-30 % and
-    its cooling 49-59 % low.
+    information criterion says the fit earns it (``_hvac_choice``). A climate control with
+    a dead band (heating below 18 C, cooling above 24 C), fitted at one 20 C set-point, came
+    out with its heating 21-30 % and its cooling 49-59 % low.
 
     Set-points the recording cannot tell apart (the ambient never reached them: every
     heating set-point above the warmest ambient fits alike) are a tie, and the tie's member
-    nearest the vocabulary's 20 C is kept; each set-point's standard error is half the span
-    of set-points whose pair fits within one unit of chi-square (the variance left after
-    the best pair x the autocorrelation time) of the best, so an unseen one says how little
-    is known of it.
-    Without a residual (the power's delay estimate): the vocabulary's set-point."""
+    nearest the vocabulary's 20 C is kept. A side that runs has its set-point's standard
+    error from the joint covariance (``_hvac_joint_sd``); a side whose coefficient is 0, half
+    the span of set-points whose pair fits within one unit of chi-square (the variance left
+    after the chosen pair x the autocorrelation time) of the best, so an unseen one says how
+    little is known of it. Without a residual (the power's delay estimate): the
+    vocabulary's set-point."""
     if resid is None:
         return _term_effect("hvac_ambient")(d, resid, rows)
     lo, hi = HVAC_SETPOINT_RANGE_C
     grid = np.arange(lo, hi + 1e-9, d.settings.hvac_setpoint_step_K)
     fall = _hvac_scan(d, resid, rows, grid)
     tau = _hvac_autocorrelation(d, resid, rows, grid, fall)
-    i, j = _hvac_choice(fall, grid, float(resid[rows] @ resid[rows]), rows.sum() / tau)
+    rr = float(resid[rows] @ resid[rows])
+    i, j = _hvac_choice(fall, grid, rr, rows.sum() / tau)
     best = float(fall[i, j])
     # one unit of chi-square: the noise left once the chosen pair is fitted, not the
     # residual it is fitted to (which still holds the heating and cooling)
-    noise = max(float(resid[rows] @ resid[rows]) - best, 0.0) / max(int(rows.sum()), 1) * tau
+    noise = max(rr - best, 0.0) / max(int(rows.sum()), 1) * tau
     near = fall >= best - noise
     least_sd = 0.5 * d.settings.hvac_setpoint_step_K
     band_sd = [max(0.5 * float(np.ptp(grid[np.any(near, axis=1)])), least_sd),
@@ -335,9 +338,10 @@ def _hvac_autocorrelation(d: Design, resid, rows, grid, fall) -> float:
     (a dead band at 16.7 / 20.8 C stayed at 20 C, its heating 15 % low)."""
     i, j = np.unravel_index(np.argmax(fall), fall.shape)
     temp = d.frame["ambient_C"].to_numpy(float)
+    state = MotionState(speed_mps=np.ones(d.n), channels={"ambient_C": temp})
+    heating, cooling = hvac_ambient_feature(float(grid[i]), float(grid[j]))(state)
     scale = _battery_side_scale(d)
-    x = np.column_stack([d.columns, scale * np.maximum(grid[i] - temp, 0.0),
-                         scale * np.maximum(temp - grid[j], 0.0)])
+    x = np.column_stack([d.columns, scale * heating, scale * cooling])
     beta = np.linalg.lstsq(x[rows], resid[rows] + d.columns[rows] @ d.base.theta, rcond=None)[0]
     left = resid + d.columns @ d.base.theta - x @ beta
     return autoregressive_inflation(left, d.samples, d.settings.inflation_block_s)
