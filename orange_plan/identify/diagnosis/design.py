@@ -127,6 +127,10 @@ class Effect:
     sd_scale : per linear coefficient, the factor its standard error grows by once the
         uncertainty of the non-linear parameters it was fitted at is counted (None: 1; an
         HVAC's set-points, ``effects._hvac_ambient_effect``)
+    scanned : how many non-linear parameters were chosen by a scan or a search on the
+        training rows (a payload's change time, a drift's shape, an HVAC's moved set-points,
+        a label's delay and window, a wind's two components): each is charged like a
+        coefficient by the information criterion (``fitting.Fit.bic``)
     """
 
     columns: np.ndarray
@@ -135,6 +139,7 @@ class Effect:
     upper: np.ndarray
     extra: dict = field(default_factory=dict)
     sd_scale: np.ndarray | None = None
+    scanned: int = 0
 
 
 @dataclass(frozen=True)

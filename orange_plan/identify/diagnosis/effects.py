@@ -82,9 +82,19 @@ def _mass_per_kg_W(d: Design) -> np.ndarray:
     return d.cache["mass_per_kg"]
 
 
-def _payload_effect(d: Design, resid, rows) -> Effect:
-    """A mass change at an unknown time: ``payload_kg * per_kg(t) * [t >= t0]``; t0 is the
-    training rows' least-squares change time (a scan over every sample, by cumulative sums).
+@dataclass(frozen=True)
+class _PayloadScan:
+    """A payload's change time scanned over every sample: the fall of the training rows'
+    residual sum of squares for a change at each sample ``gain`` [W^2] (-inf where not
+    ``valid``), and the residual on the training rows (0 elsewhere) ``resid`` [W]."""
+
+    gain: np.ndarray
+    valid: np.ndarray
+    resid: np.ndarray
+
+
+def _payload_scan(d: Design, resid, rows) -> _PayloadScan:
+    """The least-squares fit of a mass change at every sample at once, by cumulative sums.
 
     The residual comes from a fit whose coefficients already took what they could of the
     change (the mass terms the run's average mass, the ancillary draw a share of it), so a
@@ -108,6 +118,14 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     valid = ((d.t_s >= d.t_s[-1] * 0.05) & (d.t_s <= d.t_s[-1] * 0.95)
              & (spread > 1e-6 * gg[0]))
     gain = np.where(valid, rg**2 / np.where(spread > 0, spread, 1.0), -np.inf)
+    return _PayloadScan(gain, valid, r)
+
+
+def _payload_effect(d: Design, resid, rows) -> Effect:
+    """A mass change at an unknown time: ``payload_kg * per_kg(t) * [t >= t0]``; t0 is the
+    training rows' least-squares change time (``_payload_scan``)."""
+    scan = _payload_scan(d, resid, rows)
+    gain, valid, r = scan.gain, scan.valid, scan.resid
     # every change time inside a stretch of held-out rows (and the first training row after
     # it) fits the training rows alike; the first of them, argmax's pick, put the step at the
     # start of the gap, and the held-out fold paid for the whole gap's worth of a wrong mass
@@ -197,7 +215,7 @@ def _drift_effect(d: Design, resid, rows) -> Effect:
             else _best_drift_shape(d, resid, rows, family))
     chosen, col = _refined(d, resid, rows, family, best, np.ones(d.n), "drift")
     return Effect(col[:, None], ("drift_W",), np.array([-np.inf]), np.array([np.inf]),
-                  _shape_params(chosen))
+                  _shape_params(chosen), scanned=_shape_scanned(chosen))
 
 
 def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
@@ -205,21 +223,28 @@ def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
     times the baseline's rolling column (the rolling force per kg, charged where the baseline
     drives), the shape chosen by the information criterion as a power drift's
     (``_drift_effect``). A coefficient that changes only where the robot rolls is told from a
-    power drift by that column: at rest and on a descent it adds nothing. Its steps are left
-    out: a step of the rolling coefficient and a payload's step of the mass differ only by the
-    grade's and the inertia's share of the mass, and on the generated ground cases the two
-    traded places both ways (``turning+payload`` seed 0 named a rolling step for its payload,
-    ``drift_rolling`` seed 3 a payload for its rolling step)."""
+    power drift by that column: at rest and on a descent it adds nothing. A step of the
+    rolling coefficient and a payload's step of the mass differ only by the grade's and the
+    inertia's share of the mass, so a rolling step is offered only where it fits the
+    training rows better than the best payload's step by ``settings.min_bic_evidence``
+    (``_rolling_step_earned``); otherwise the step is the payload's and the rolling family
+    offers lines and decays. Without that rule the two traded places both ways
+    (``turning+payload`` seed 0 named a rolling step for its payload at a BIC 0.3 apart,
+    ``drift_rolling`` seed 3 a payload for its rolling step at a BIC 140 apart)."""
     family = _drift_shapes(d)
     rolling = d.columns[:, d.base.names.index("rolling_kg")]
     columns = family.columns * rolling[:, None]  # one per shape, for the choice
-    default = family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0))
-    best = (default if resid is None else _best_drift_shape(
-        d, resid, rows, family, columns, "drift_rolling", no_steps=True))
+    if resid is None:
+        best = family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0))
+    else:
+        best = _best_drift_shape(d, resid, rows, family, columns, "drift_rolling", False)
     chosen, col = _refined(d, resid, rows, family, best, rolling, "drift_rolling")
+    if chosen.shape == "step" and not _rolling_step_earned(d, resid, rows, col):
+        best = _best_drift_shape(d, resid, rows, family, columns, "drift_rolling", True)
+        chosen, col = _refined(d, resid, rows, family, best, rolling, "drift_rolling")
     base = d.base.coefficient("rolling_kg")
     return Effect(col[:, None], ("drift_rolling_kg",), np.array([-max(base, 0.0)]),
-                  np.array([np.inf]), _shape_params(chosen))
+                  np.array([np.inf]), _shape_params(chosen), scanned=_shape_scanned(chosen))
 
 
 def _refined(d: Design, resid, rows, family: DriftFamily, best: int, scale: np.ndarray,
@@ -255,6 +280,12 @@ def _shape_params(chosen: DriftShape) -> dict:
     return {"drift_span_s" if chosen.shape == "linear" else "drift_tau_s": (chosen.tau_s, 0.0)}
 
 
+def _shape_scanned(chosen: DriftShape) -> int:
+    """A drift shape's non-linear parameters: a decay's time constant or a step's time (a
+    line over the run has none), as ``_best_drift_shape``'s criterion counts them."""
+    return 0 if chosen.shape == "linear" else 1
+
+
 def _best_drift_shape(d: Design, resid, rows, family: DriftFamily, columns=None,
                       tag: str = "drift", no_steps: bool | None = None) -> int:
     """The index of the shape with the smallest BIC on ``rows`` (``_drift_effect``); the
@@ -277,7 +308,7 @@ def _best_drift_shape(d: Design, resid, rows, family: DriftFamily, columns=None,
     r = resid[rows]
     fall = (r @ proj.own) ** 2 / proj.cc
     rss = np.maximum(float(r @ r) - fall, 1e-300)
-    nonlinear = np.array([s.shape != "linear" for s in family.shapes], float)
+    nonlinear = np.array([_shape_scanned(s) for s in family.shapes], float)
     bic = proj.n_eff * np.log(rss) + nonlinear * np.log(proj.n_eff)
     if _steps_are_payloads(d) if no_steps is None else no_steps:
         bic[[i for i, s in enumerate(family.shapes) if s.shape == "step"]] = np.inf
@@ -327,7 +358,7 @@ def _hvac_ambient_effect(d: Design, resid, rows) -> Effect:
     sd = [band if s is None else max(s, least_sd) for s, band in zip(sd, band_sd)]
     return Effect(eff.columns, eff.names, eff.lower, eff.upper,
                   {"hvac_heat_below_C": (heat, sd[0]), "hvac_cool_above_C": (cool, sd[1])},
-                  sd_scale=scale)
+                  sd_scale=scale, scanned=int(heat != HVAC_SETPOINT_C) + int(cool != HVAC_SETPOINT_C))
 
 
 def _hvac_autocorrelation(d: Design, resid, rows, grid, fall) -> float:
@@ -497,6 +528,24 @@ def _steps_are_payloads(d: Design) -> bool:
     return _needs_mass(d) is None and float(np.ptp(per_kg)) <= spread * abs(mean)
 
 
+def _rolling_step_earned(d: Design, resid, rows, column) -> bool:
+    """Whether a rolling coefficient's step ``column`` leaves the training rows' residual
+    smaller than the best payload's step by ``settings.min_bic_evidence`` of BIC (at the
+    drift's effective sample count; both have one coefficient and one time). Where the mass
+    shows only in the rolling force, the two are one column and the payload keeps it."""
+    if _needs_mass(d) is not None:
+        return True
+    proj = d.cache[("drift_rolling_projection", hash(np.packbits(rows).tobytes()))]
+    r = resid[rows]
+    own = column[rows] - proj.q @ (proj.q.T @ column[rows])
+    rolling_fall = float((r @ own) ** 2 / max(float(own @ own), 1e-300))
+    payload_fall = max(float(np.max(_payload_scan(d, resid, rows).gain)), 0.0)
+    rr = float(r @ r)
+    evidence = proj.n_eff * np.log(max(rr - payload_fall, 1e-300)
+                                   / max(rr - rolling_fall, 1e-300))
+    return evidence >= d.settings.min_bic_evidence
+
+
 def _drift_term_of(params: dict, term_id: str = "drift"):
     """The ``drift`` (or ``drift_rolling``) term of a finding's shape (its parameters name
     it)."""
@@ -516,7 +565,7 @@ def payload_step(d: Design, t0: float, sd: float = 0.0) -> Effect:
     # twice its mass (a fold whose scan lands on a fluke must not extrapolate wildly)
     mass = d.scenario.robot.mass_kg
     return Effect(col, ("payload_kg",), np.array([-0.8 * mass]), np.array([2.0 * mass]),
-                  {"payload_from_s": (t0, sd)})
+                  {"payload_from_s": (t0, sd)}, scanned=1)
 
 
 def _wind_effect(d: Design, resid, rows) -> Effect:
@@ -586,4 +635,5 @@ def _wind_effect(d: Design, resid, rows) -> Effect:
     col = (k * per_k - base_drag)[:, None]
     # the column enters at its own size (a share held at 1; a free share would let a fluke
     # scale a small wind into a large effect)
-    return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra)
+    return Effect(col, ("wind_share",), np.array([1.0 - 1e-9]), np.array([1.0 + 1e-9]), extra,
+                  scanned=2)

@@ -63,6 +63,7 @@ class Fit:
     names : coefficient names (baseline, then candidates)
     fold_ss : held-out sum of squared errors per fold [W^2]
     x : the design's columns on all samples (n, k) [W per unit]
+    n_scanned : the candidates' non-linear parameters chosen by a scan (``Effect.scanned``)
     """
 
     theta: np.ndarray
@@ -76,13 +77,16 @@ class Fit:
     names: tuple
     fold_ss: np.ndarray
     x: np.ndarray
+    n_scanned: int = 0
 
     def bic(self, tau: float) -> float:
-        """Bayesian information criterion with ``n / tau`` effective samples; compare fits
-        at one ``tau`` (the reference model's), or a whiter residual would pay for its
-        parameters with fewer samples."""
-        n_eff = max(self.predicted_W.size / tau, self.theta.size + 2.0)
-        return n_eff * np.log(max(self.rmse_W**2, 1e-300)) + self.theta.size * np.log(n_eff)
+        """Bayesian information criterion with ``n / tau`` effective samples, every
+        coefficient and every scanned parameter charged ``ln n_eff``; compare fits at one
+        ``tau`` (the reference model's), or a whiter residual would pay for its parameters
+        with fewer samples."""
+        k = self.theta.size + self.n_scanned
+        n_eff = max(self.predicted_W.size / tau, k + 2.0)
+        return n_eff * np.log(max(self.rmse_W**2, 1e-300)) + k * np.log(n_eff)
 
     def owned(self, cand_id: str) -> list[int]:
         """Indices of a candidate's coefficients (named ``<candidate>.<coefficient>``)."""
@@ -184,10 +188,14 @@ def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
     s2 = float(np.mean(resid**2))
     gram = x.T @ x + np.diag(np.r_[d.prior_weight, np.zeros(x.shape[1] - p)])
     cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * _sd_scales(d, chosen)
+    effects = _all_row_effects(d, chosen)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.concatenate(
+        [np.ones(p), *(np.ones(len(e.names)) if e.sd_scale is None else e.sd_scale
+                       for e in effects)])
     fold_ss = np.bincount(d.fold, (d.y - held) ** 2, minlength=d.settings.n_folds)
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
-               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x)
+               float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x,
+               sum(e.scanned for e in effects))
 
 
 def _stack(d: Design, chosen, rows):
@@ -214,15 +222,12 @@ def _stack(d: Design, chosen, rows):
             np.concatenate([d.upper, *(e.upper for e in effects)]), names, extra)
 
 
-def _sd_scales(d: Design, chosen) -> np.ndarray:
-    """Each coefficient's ``Effect.sd_scale`` (1 for the baseline's) in ``_stack``'s order,
-    from the effects fitted on every row."""
+def _all_row_effects(d: Design, chosen) -> list:
+    """The chosen candidates' effects fitted on every row (``_stack`` built them), in
+    order: their ``sd_scale`` and ``scanned`` describe the fit on all samples."""
     rows_key = hash(np.packbits(np.ones(d.n, bool)).tobytes())
-    scales = [np.ones(d.columns.shape[1])]
-    for k, cand in enumerate(chosen):
-        eff = d.cache[("effect", cand.id, tuple(c.id for c in chosen[:k]), rows_key)]
-        scales.append(np.ones(len(eff.names)) if eff.sd_scale is None else eff.sd_scale)
-    return np.concatenate(scales)
+    return [d.cache[("effect", cand.id, tuple(c.id for c in chosen[:k]), rows_key)]
+            for k, cand in enumerate(chosen)]
 
 
 def _residual_without(d: Design, effects, rows) -> np.ndarray:

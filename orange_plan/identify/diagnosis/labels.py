@@ -110,7 +110,7 @@ def _label_effect(d: Design, _resid, rows) -> Effect:
     return Effect(_label_columns(d, lag.samples, lag.window_samples),
                   tuple(f"delta_rolling_kg_{s}" for s in own),
                   np.full(len(own), -base), np.full(len(own), np.inf),
-                  {"label_lag_s": (lag.lag_s, lag.sd_s)})
+                  {"label_lag_s": (lag.lag_s, lag.sd_s)}, scanned=2)  # the delay and the window
 
 
 def label_lag(d: Design, rows: np.ndarray) -> LabelLag:

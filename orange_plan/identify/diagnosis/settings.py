@@ -77,6 +77,10 @@ class DiagnosisSettings:
         cooling are tried at, over physics.terms.HVAC_SETPOINT_RANGE_C [K]
     payload_step_spread : largest spread (peak to peak, a share of its mean) of the power per
         kg of mass at which a drift's step is a payload's [-]
+    min_bic_evidence : smallest fall of the information criterion that counts as evidence of
+        one explanation over another that draws nearly the same power [-] (2: "positive" on
+        Kass and Raftery's scale): a rolling coefficient's step is named in a payload's place
+        only with it, and a round chooses by the criterion only with it
     """
 
     min_gain: float = 0.02
@@ -103,6 +107,7 @@ class DiagnosisSettings:
     drift_step_times: int = 37
     payload_step_spread: float = 0.01
     hvac_setpoint_step_K: float = 0.25
+    min_bic_evidence: float = 2.0
 
 
 DEFAULT_SETTINGS = DiagnosisSettings()
