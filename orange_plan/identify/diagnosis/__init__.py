@@ -20,12 +20,14 @@ that are not a term, a payload step or a wind vector, columns built here) form o
 design. The exception is ``regen``, whose column is the negative part of the force of the
 model it joins: a fit with it puts the chosen terms inside the model (``fitting._fit_with_regen``).
 A ``drift`` is a family of shapes of time, the shape chosen by BIC (``effects._drift_effect``); its
-step only where a payload's step would not be the same column (``effects._steps_are_payloads``).
+step only where a payload's step would not be the same column (``effects._steps_are_payloads``);
+a rolling drift's step only where it fits better than a payload's step by a BIC of
+``min_bic_evidence`` (``effects._rolling_step_earned``).
 Forward selection: each round, every candidate not yet chosen is refitted *together
 with* the baseline terms (bounded least squares: coefficients keep their physical sign) on
 blocked folds (interleaved time blocks: residuals are autocorrelated, so a fit judged on
-neighbouring samples would look better than it is) and judged on the held-out blocks. The
-best one is accepted only when all of these hold:
+neighbouring samples would look better than it is) and judged on the held-out blocks. A
+candidate passes only when all of these hold:
 
 * the held-out RMSE falls by at least ``min_gain`` (a share) over the current model, and
   at least ``min_folds`` of the ``n_folds`` folds are no worse (within 0.5 %);
@@ -38,6 +40,13 @@ best one is accepted only when all of these hold:
   bar is raised by ``sqrt(2 ln ln n_eff)`` (``scanned``);
 * the Bayesian information criterion, with the *effective* number of samples
   ``n / tau``, falls.
+
+Of those that pass, and (once one passes) the scanned ones refused only by their scan's
+price, the round takes the one with the lowest BIC, each scanned parameter charged like a
+coefficient; among those within ``min_bic_evidence`` of the lowest, the best held out
+(``selection._round_choice``). The scan's price guards against naming a scan's largest t where
+nothing is missing; which explanation of a missing effect is the right one is the
+criterion's question, and held out a step's time is a coin toss in the fold that hides it.
 
 When no single candidate passes, every pair of candidates is tried, fitted together and judged
 as one addition (each member must still be significant and worth a term): two effects can
