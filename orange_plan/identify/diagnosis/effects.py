@@ -358,7 +358,7 @@ def _hvac_ambient_effect(d: Design, resid, rows) -> Effect:
     sd = [band if s is None else max(s, least_sd) for s, band in zip(sd, band_sd)]
     return Effect(eff.columns, eff.names, eff.lower, eff.upper,
                   {"hvac_heat_below_C": (heat, sd[0]), "hvac_cool_above_C": (cool, sd[1])},
-                  sd_scale=scale, scanned=int(heat != HVAC_SETPOINT_C) + int(cool != HVAC_SETPOINT_C))
+                  sd_scale=scale, scanned=int(np.sum(_moved(np.array([heat, cool])))))
 
 
 def _hvac_autocorrelation(d: Design, resid, rows, grid, fall) -> float:
@@ -378,13 +378,19 @@ def _hvac_autocorrelation(d: Design, resid, rows, grid, fall) -> float:
     return autoregressive_inflation(left, d.samples, d.settings.inflation_block_s)
 
 
+def _moved(setpoints: np.ndarray) -> np.ndarray:
+    """Which set-points are moved off the vocabulary's HVAC_SETPOINT_C: the parameters an
+    HVAC's scan chose, which the information criterion charges."""
+    return setpoints != HVAC_SETPOINT_C
+
+
 def _hvac_choice(fall, grid, rr: float, n_eff: float) -> tuple[int, int]:
     """The pair of set-points with the least BIC, ``n_eff ln(RSS) + k ln(n_eff)`` with ``k``
     the set-points moved off HVAC_SETPOINT_C, the tie's member nearest it: a set-point is
     moved only where the fit earns it. On a trip that stays on one side of 20 C, the pair
     that fitted the training rows best put a kink inside the trip's few kelvin, and held out
     its extrapolation lost 2,566 % where the one set-point gained."""
-    moved = np.add.outer(grid != HVAC_SETPOINT_C, grid != HVAC_SETPOINT_C).astype(float)
+    moved = np.add.outer(_moved(grid), _moved(grid)).astype(float)
     rss = np.maximum(rr - fall, 1e-300)
     n_eff = max(float(n_eff), 2.0)
     bic = np.where(np.isfinite(fall), n_eff * np.log(rss) + moved * np.log(n_eff), np.inf)

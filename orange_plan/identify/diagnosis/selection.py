@@ -240,18 +240,18 @@ def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
     # that lives on hills helps the folds with hills and leaves the others unchanged
     folds = int(np.count_nonzero(fit.fold_ss <= current.fold_ss * 1.005))
     min_gain = s.min_gain * len(new)
-    reason = (f"held-out gain {100 * gain:.1f} % (need {100 * min_gain:.0f} %)"
-              if gain < min_gain
-              else f"no worse on {folds} of {s.n_folds} folds (need {s.min_folds})"
-              if folds < s.min_folds
-              else (f"{who(small)}its power is {100 * small.share:.2f} % of the mean power RMS "
-                    f"(need {100 * s.min_effect_share:.0f} %)") if small
-              else f"{who(weak)}t = {weak.t:.1f} (need {weak.need_t:.1f})" if weak
-              else f"BIC +{bic_change:.1f}" if bic_change >= 0 else "")
+    # every failed check's reason, in the order they are reported (the first is the reason)
+    failed = [why for fails, why in (
+        (gain < min_gain, lambda: f"held-out gain {100 * gain:.1f} % (need {100 * min_gain:.0f} %)"),
+        (folds < s.min_folds, lambda: f"no worse on {folds} of {s.n_folds} folds (need {s.min_folds})"),
+        (small is not None, lambda: f"{who(small)}its power is {100 * small.share:.2f} % of the "
+                                    f"mean power RMS (need {100 * s.min_effect_share:.0f} %)"),
+        (weak is not None, lambda: f"{who(weak)}t = {weak.t:.1f} (need {weak.need_t:.1f})"),
+        (bic_change >= 0, lambda: f"BIC +{bic_change:.1f}")) if fails]
+    reason = failed[0]() if failed else ""
     t_max = min(c.t for c in checks)
-    # refused by the scan's price alone: every other check passes, the t clears min_t
-    priced_out = (len(new) == 1 and weak is not None and small is None and gain >= min_gain
-                  and folds >= s.min_folds and weak.t >= s.min_t and bic_change < 0)
+    # refused by the scan's price alone: the t check is the only one failed, and t >= min_t
+    priced_out = len(new) == 1 and len(failed) == 1 and weak is not None and weak.t >= s.min_t
     return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds,
                  limit_W, priced_out)
 
