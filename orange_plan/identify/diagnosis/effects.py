@@ -261,16 +261,49 @@ def _refined(d: Design, resid, rows, family: DriftFamily, best: int, scale: np.n
     spacing = family.shapes[best].tau_s * 0.9 / max(d.settings.drift_step_times - 1, 1)
     times = np.arange(max(chosen.from_s - spacing, 0.0), chosen.from_s + spacing + 0.5, 1.0)
     proj = d.cache[(f"{tag}_projection", hash(np.packbits(rows).tobytes()))]
-    steps = np.clip(elapsed[rows, None] - times[None, :] + 0.5, 0.0, 1.0) * scale[rows, None]
-    own = steps - proj.q @ (proj.q.T @ steps)
-    cc = np.einsum("ij,ij->j", own, own)
-    fall = np.where(cc > 0, (resid[rows] @ own) ** 2 / np.where(cc > 0, cc, 1.0), -np.inf)
+    fall = _step_falls(elapsed, rows, scale, resid, proj.q, times)
     # every time inside a stretch of held-out rows fits the training rows alike: the middle
     # of the tie, as a payload's change time (``_payload_effect``), not its start
     ties = np.flatnonzero(fall >= fall.max() - 1e-9 * abs(fall.max()))
     from_s = float(times[ties[ties.size // 2]])
     column = np.clip(elapsed - from_s + 0.5, 0.0, 1.0) * scale
     return DriftShape("step", chosen.tau_s, from_s), column
+
+
+def _step_falls(elapsed, rows, scale, resid, q, times) -> np.ndarray:
+    """The fall of the training rows' residual sum of squares for a step of ``scale`` at
+    each of ``times`` [s], each step judged by its part orthogonal to the baseline's columns
+    (``q``, an orthonormal basis on the rows), -inf where the baseline spans the step.
+
+    The step is the ramp ``clip(elapsed - t + 0.5, 0, 1)`` (``drift_shape_feature``): 1 from
+    ``t + 0.5`` on, a fraction on the samples within half a second of ``t``. Its inner
+    products with the residual, itself and the basis are sums over the rows from some sample
+    to the end (cumulative sums, as a payload's scan, ``_payload_scan``) plus the few samples
+    of the ramp, so a scan over ~100 times costs two passes over the recording rather than a
+    projection of an n x 100 matrix."""
+    w = np.where(rows, scale, 0.0)
+    r = np.where(rows, resid, 0.0)
+    qf = np.zeros((elapsed.size, q.shape[1]))
+    qf[rows] = q
+
+    def from_each(x):  # sums from each sample to the end; one past the end: 0
+        return np.concatenate([np.cumsum(x[::-1], axis=0)[::-1], np.zeros((1, *x.shape[1:]))])
+
+    rs, ss, qs = from_each(r * w), from_each(w * w), from_each(qf * w[:, None])
+    lo = np.searchsorted(elapsed, times - 0.5, side="right")  # first sample past t - 0.5
+    hi = np.searchsorted(elapsed, times + 0.5, side="left")  # first sample at 1
+    band = lo[:, None] + np.arange(max(int(np.max(hi - lo, initial=0)), 1))[None, :]
+    inside = band < hi[:, None]
+    band = np.minimum(band, elapsed.size - 1)
+    ramp = np.where(inside, np.clip(elapsed[band] - times[:, None] + 0.5, 0.0, 1.0), 0.0)
+    part = ramp * w[band]  # the steps' values on their ramps' samples
+    rc = rs[hi] + np.einsum("jk,jk->j", part, r[band])
+    cc = ss[hi] + np.einsum("jk,jk->j", part, part)
+    qc = qs[hi] + np.einsum("jk,jkp->jp", part, qf[band])
+    own_rc = rc - qc @ (q.T @ resid[rows])
+    own_cc = cc - np.einsum("jp,jp->j", qc, qc)
+    spanned = own_cc <= 1e-9 * np.maximum(cc, 1e-300)
+    return np.where(spanned, -np.inf, own_rc**2 / np.where(spanned, 1.0, own_cc))
 
 
 def _shape_params(chosen: DriftShape) -> dict:
