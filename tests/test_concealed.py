@@ -35,6 +35,7 @@ from orange_plan.sim.concealed import (
     SURFACE_SHARE,
     concealed_case,
     concealed_suite,
+    suite_names,
 )
 from orange_plan.sim.simulator import with_payload
 from orange_plan.telemetry.recording import integrate_J, load_recording, recording_from_frame
@@ -384,3 +385,16 @@ def test_bench_concealed_reports_each_case():
 def test_bench_concealed_refuses_bad_options(args, match):
     code, _, stderr = run_cli("bench", "concealed", *args)
     assert code == 2 and match in stderr and len(stderr.strip().splitlines()) == 1
+
+
+def test_suite_generates_only_the_cases_asked_for():
+    cases = concealed_suite([4], 90.0, 5.0, only={"drift", "null-ground-labels"})
+    assert [c.name for c in cases] == ["drift/seed4", "null-ground-labels/seed4"]
+    names = suite_names()
+    assert names[-1] == "null-ground-labels" and len(set(names)) == len(names)
+
+
+def test_bench_diagnose_refuses_an_unknown_case_before_generating_any():
+    code, _, stderr = run_cli("bench", "diagnose", "--seeds", "0", "--only", "drift,turnin")
+    assert code == 2 and "did you mean 'turning'" in stderr
+    assert len(stderr.strip().splitlines()) == 1

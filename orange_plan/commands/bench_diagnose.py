@@ -16,7 +16,8 @@ SeedsOpt = Annotated[str, typer.Option(
 DurationOpt = Annotated[float, typer.Option("--duration-s", help="Length of each recording [s].")]
 RateOpt = Annotated[float, typer.Option("--rate-hz", help="Recording rate [Hz].")]
 OnlyOpt = Annotated[str | None, typer.Option(
-    "--only", help="Comma-separated case names to keep (e.g. turning,null-ground).")]
+    "--only", help="Comma-separated case names to generate and diagnose, the others "
+                    "skipped (e.g. turning,null-ground).")]
 CsvOpt = Annotated[Path | None, typer.Option("--csv", help="Write the per-case rows here.")]
 RealOpt = Annotated[Path | None, typer.Option(
     "--real", help="Instead of the generated cases: the BMW i3 trips under this data folder "
@@ -48,8 +49,7 @@ def diagnose_bench_cmd(seeds: SeedsOpt = "101,102,103", duration_s: DurationOpt 
     if csv is not None:
         check_output(csv, "--csv", [".csv"])
     keep = None if only is None else {s.strip() for s in only.split(",") if s.strip()}
-    cases = [c for c in concealed_suite(seed_list, duration_s=duration_s, rate_Hz=rate_hz)
-             if keep is None or c.name.split("/")[0] in keep]
+    cases = concealed_suite(seed_list, duration_s=duration_s, rate_Hz=rate_hz, only=keep)
     if not cases:
         raise InputError(f"--only {only!r} keeps no case")
     rows = []

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -542,12 +542,36 @@ def case_label(terms: Sequence[str], kind: str | None) -> str:
     return label if kind is None or kind == KINDS[terms[0]][0] else f"{label}-{kind}"
 
 
+def suite_names() -> list[str]:
+    """The names of one seed's cases (``concealed_suite``), in order, without the seed."""
+    return [label for label, *_ in _suite_entries()]
+
+
+def _suite_entries() -> list[tuple[str, tuple[str, ...], str | None, bool]]:
+    """(name, terms, kind, labels) of one seed's cases: ``suite_requests``, then the ground
+    null case with a classifier's surface labels."""
+    return [*((case_label(terms, kind), terms, kind, False) for terms, kind in suite_requests()),
+            ("null-ground-labels", (), "ground", True)]
+
+
 def concealed_suite(seeds: Iterable[int], duration_s: float = 1800.0,
-                    rate_Hz: float = 10.0) -> list[ConcealedCase]:
+                    rate_Hz: float = 10.0,
+                    only: Collection[str] | None = None) -> list[ConcealedCase]:
     """Every case of ``suite_requests`` for each seed, then the ground null case with a
-    classifier's surface labels (seed by seed, in that order)."""
-    return [case for seed in seeds for case in (
-        *(concealed_case(terms, seed, kind=kind, duration_s=duration_s, rate_Hz=rate_Hz)
-          for terms, kind in suite_requests()),
-        concealed_case((), seed, kind="ground", duration_s=duration_s, rate_Hz=rate_Hz,
-                       labels=True))]
+    classifier's surface labels (seed by seed, in that order); with ``only``, the cases of
+    those names (``suite_names``) alone, the others not generated.
+
+    Raises
+    ------
+    InputError
+        A name in ``only`` that is not a case of the suite.
+    """
+    unknown = sorted(set(only or ()) - set(suite_names()))
+    if unknown:
+        raise InputError(f"no concealed case is named {unknown[0]!r}"
+                         f"{close_match_hint(unknown[0], suite_names())}; the cases are "
+                         f"{', '.join(suite_names())}")
+    return [concealed_case(terms, seed, kind=kind, duration_s=duration_s, rate_Hz=rate_Hz,
+                           labels=labels)
+            for seed in seeds for name, terms, kind, labels in _suite_entries()
+            if only is None or name in only]
