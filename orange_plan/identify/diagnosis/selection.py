@@ -278,6 +278,10 @@ def detection_limit_W(d: Design, cand: Candidate, fit: Fit, current: Fit,
     ``s0 sqrt(1 - exp(-need_t^2 / n_eff))``. The held-out gain and the folds are not in it:
     it says what the noise hides, not what the cross-validation would accept. An effect
     below it could have been missed; one well above it (twice) would have passed the t bar.
+    A drift's limit is its shape's in this fit: a shape the baseline's columns partly span
+    (a slow decay, which the constant loads take up in part) has a higher one, so the
+    statement holds for the shape tried (``drift+turning`` seed 202: 1.21 W at the 300 s
+    decay tried, 2.2 W at the true 1200 s decay, whose 1.65 W was missed).
     """
     need_t = _needed_t(cand, n_eff, d.settings)
     share_W = d.settings.min_effect_share * d.mean_power_W
