@@ -281,7 +281,7 @@ def detection_limit_W(d: Design, cand: Candidate, fit: Fit, current: Fit,
     A drift's limit is its shape's in this fit: a shape the baseline's columns partly span
     (a slow decay, which the constant loads take up in part) has a higher one, so the
     statement holds for the shape tried (``drift+turning`` seed 202: 1.21 W at the 300 s
-    decay tried, 2.2 W at the true 1200 s decay, whose 1.65 W was missed).
+    decay tried, 2.69 W at the true 1200 s decay, whose 1.65 W was missed).
     """
     need_t = _needed_t(cand, n_eff, d.settings)
     share_W = d.settings.min_effect_share * d.mean_power_W
