@@ -72,6 +72,29 @@ def test_left_out_turning_is_found_fitted_and_explains_the_residual(ctx):
     assert "turn" in found.evidence and "held-out RMSE" in found.evidence
 
 
+def test_a_diagnosis_runs_on_one_blas_thread_and_gives_the_others_back(ctx, monkeypatch):
+    from threadpoolctl import ThreadpoolController, threadpool_limits
+
+    from orange_plan.identify.diagnosis import pipeline
+
+    seen = []
+    select = pipeline.select
+
+    def counting_select(d, pool):
+        seen.append({i["num_threads"] for i in ThreadpoolController().info()
+                     if i["user_api"] == "blas"})
+        return select(d, pool)
+
+    monkeypatch.setattr(pipeline, "select", counting_select)
+    frame = drive(ctx, with_turning(ctx, 12.0), seed=3)
+    with threadpool_limits(2, user_api="blas"):
+        result = diagnose(recording_from_frame(frame), ctx)
+        after = {i["num_threads"] for i in ThreadpoolController().info()
+                 if i["user_api"] == "blas"}
+    assert seen and all(s == {1} for s in seen if s)
+    assert after <= {2} and [f.term for f in result.findings] == ["turning"]
+
+
 def test_nothing_missing_is_said_explicitly_with_evidence(ctx):
     result = diagnose(recording_from_frame(drive(ctx, seed=4)), ctx)
     out = result.to_dict()

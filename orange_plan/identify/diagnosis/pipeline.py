@@ -137,7 +137,17 @@ def diagnose(recording, ctx, *, grade_window_m: float | None = None,
     -------
     Diagnosis
     """
-    pool = pool or candidates()
+    from threadpoolctl import threadpool_limits
+
+    # the design is tall and thin (n x ~20): a BLAS thread per core bought no time alone
+    # (turning+payload 0: 2.6-3.2 s on one thread, 2.7-3.1 s on two, at twice the processor
+    # time), and beside other work its spinning threads made a diagnosis up to 4x slower
+    with threadpool_limits(1, user_api="blas"):
+        return _diagnose(recording, ctx, grade_window_m, pool or candidates(), settings)
+
+
+def _diagnose(recording, ctx, grade_window_m, pool, settings) -> Diagnosis:
+    """``diagnose``'s stages, on one BLAS thread."""
     d = build_design(recording, ctx, grade_window_m=grade_window_m, settings=settings)
     selection = select(d, pool)
     if selection.chosen:
