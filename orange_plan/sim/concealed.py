@@ -323,7 +323,7 @@ def concealed_case(terms: Sequence[str], seed: int, *, kind: str | None = None,
         frame = _with_labels(plan, context_of(scenario_from_dict(plan.truth_toml, scenario_path)),
                              seen_ctx, frame, rng, rate_Hz)
     frame = _finish(plan, truth_ctx, frame, rng)
-    name = f"{case_label(terms, kind)}{'-labels' if plan.labels and not terms else ''}/seed{seed}"
+    name = f"{case_label(terms, kind, plan.labels)}/seed{seed}"
     recording = recording_from_frame(frame, source=name)
     truth = {t: plan.truth[t] for t in terms}
     return ConcealedCase(name, kind, seen_ctx, recording, frame, truth, plan.seen_toml,
@@ -533,11 +533,12 @@ def suite_requests() -> list[tuple[tuple[str, ...], str | None]]:
             (("drift",), "marine"), ((), "ground"), ((), "aerial"), ((), "marine")]
 
 
-def case_label(terms: Sequence[str], kind: str | None) -> str:
-    """The name of a case without its seed: ``"wind+payload"``, ``"null-ground"``, and a term
-    on a kind other than its default ``"drift-marine"``."""
+def case_label(terms: Sequence[str], kind: str | None, labels: bool = False) -> str:
+    """The name of a case without its seed: ``"wind+payload"``, ``"null-ground"``, a term
+    on a kind other than its default ``"drift-marine"``, and a null case with a classifier's
+    surface ``labels`` ``"null-ground-labels"``."""
     if not terms:
-        return f"null-{kind or 'ground'}"
+        return f"null-{kind or 'ground'}{'-labels' if labels else ''}"
     label = "+".join(terms)
     return label if kind is None or kind == KINDS[terms[0]][0] else f"{label}-{kind}"
 
@@ -550,8 +551,8 @@ def suite_names() -> list[str]:
 def _suite_entries() -> list[tuple[str, tuple[str, ...], str | None, bool]]:
     """(name, terms, kind, labels) of one seed's cases: ``suite_requests``, then the ground
     null case with a classifier's surface labels."""
-    return [*((case_label(terms, kind), terms, kind, False) for terms, kind in suite_requests()),
-            ("null-ground-labels", (), "ground", True)]
+    requests = [*((terms, kind, False) for terms, kind in suite_requests()), ((), "ground", True)]
+    return [(case_label(*request), *request) for request in requests]
 
 
 def concealed_suite(seeds: Iterable[int], duration_s: float = 1800.0,
