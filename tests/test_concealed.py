@@ -341,11 +341,15 @@ def test_default_kind_per_term():
 @settings(max_examples=6, deadline=None, database=None,
           suppress_health_check=[HealthCheck.too_slow])
 @given(term=st.sampled_from([*CONCEALABLE, None]), seed=st.integers(0, 2**16))
-# a run mostly downhill: regeneration returns nearly all it draws (71.5 J net of 3.5 kJ drawn)
+# runs mostly downhill: regeneration returns nearly all it draws (71.5 J net of 3.5 kJ drawn;
+# 19.7 J net of 1.24 kJ drawn down 25 m, which the completed model puts at -19.0 J)
 @example(term="regen", seed=18146)
+@example(term="regen", seed=363)
 def test_property_cases_are_physical_and_clean(term, seed):
     """Any seed: the recording passes the normal cleaning without a reported issue, true
-    energies are positive, soc falls, and the completed model accounts for the energy: its
+    energies are positive (with regeneration, the energy drawn: a run down a hill may return
+    about what it draws), soc stays in (0, 1] and falls without regeneration, and the
+    completed model accounts for the energy: its
     error is measured against the energy that flowed through the battery either way (a run
     whose regeneration returns nearly all it draws has a net energy near 0, so an error
     relative to that net says nothing of the model)."""
@@ -354,13 +358,17 @@ def test_property_cases_are_physical_and_clean(term, seed):
     again = recording_from_frame(case.frame)
     assert again.issues == ()
     e_rec, _, e_done, _, _ = energies(case if term else with_example_model(case))
-    assert e_rec > 0 and e_done > 0
-    soc = case.frame["soc"].to_numpy()
-    assert 0 < soc[-1] < soc[0] <= 1
-    if "regen" not in case.truth:  # only regeneration charges the battery
-        assert np.all(np.diff(soc) <= 1e-12)
     rec = case.recording
-    flowed = integrate_J(rec, np.abs(rec.frame["power_W"].to_numpy(float)))
+    power = rec.frame["power_W"].to_numpy(float)
+    if "regen" in case.truth:
+        assert integrate_J(rec, np.clip(power, 0.0, None)) > 0
+    else:
+        assert e_rec > 0 and e_done > 0
+    soc = case.frame["soc"].to_numpy()
+    assert np.all((soc > 0) & (soc <= 1))
+    if "regen" not in case.truth:  # only regeneration charges the battery (up to full)
+        assert soc[-1] < soc[0] and np.all(np.diff(soc) <= 1e-12)
+    flowed = integrate_J(rec, np.abs(power))
     assert abs(e_done - e_rec) / flowed * 100 < 2 * ENERGY_TOL_PCT
 
 
