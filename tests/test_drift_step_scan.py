@@ -10,11 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from orange_plan.identify.diagnosis.effects import _column_basis, _step_falls
+from orange_plan.physics.terms import step_ramp
 
 
 def _projected_falls(elapsed, rows, scale, resid, q, times):
     """The falls the slow way: every step column built, projected off the basis."""
-    steps = np.clip(elapsed[rows, None] - times[None, :] + 0.5, 0.0, 1.0) * scale[rows, None]
+    steps = step_ramp(elapsed[rows, None], times[None, :]) * scale[rows, None]
     own = steps - q @ (q.T @ steps)
     cc = np.einsum("ij,ij->j", own, own)
     spanned = cc <= 1e-9 * np.einsum("ij,ij->j", steps, steps)

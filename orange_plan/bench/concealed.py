@@ -13,8 +13,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from orange_plan.errors import InputError, close_match_hint
-from orange_plan.sim.concealed import case_label, concealed_case, suite_requests
+from orange_plan.sim.concealed import case_label, concealed_case, kept_by_name, suite_requests
 from orange_plan.telemetry.replay import replay_context
 
 
@@ -47,12 +46,8 @@ def labels_of(only: Sequence[str] | None) -> list[tuple[tuple[str, ...], str | N
     requests = suite_requests()
     if not only:
         return requests
-    known = [case_label(t, k) for t, k in requests]
-    unknown = [n for n in only if n not in known]
-    if unknown:
-        raise InputError(f"unknown case '{unknown[0]}'; known: {', '.join(known)}"
-                         + close_match_hint(unknown[0], known))
-    return [r for r, label in zip(requests, known) if label in only]
+    kept = kept_by_name([case_label(t, k) for t, k in requests], only)
+    return [r for r, keep in zip(requests, kept) if keep]
 
 
 def concealed_benchmark(seeds: Sequence[int], duration_s: float, rate_Hz: float,

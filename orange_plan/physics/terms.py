@@ -244,6 +244,17 @@ levels off), ``linear`` ``t / tau`` (a steady rise or fall, ``drift_W`` per ``ta
 ``[t >= t0]`` (a load switched on or off at ``t0``)."""
 
 
+STEP_RISE_S = 1.0
+"""How long a drift's ``step`` takes to rise from 0 to 1, centred on its time [s]: a ramp, so
+that CasADi can differentiate it (``step_ramp``)."""
+
+
+def step_ramp(t, from_s: float):
+    """A drift's ``step`` at ``from_s`` [s] at the times ``t`` [s]: 0 until half of STEP_RISE_S
+    before it, 1 from half of it after, linear between (numpy or CasADi) [-]."""
+    return ops.fmin(ops.fmax((t - from_s + 0.5 * STEP_RISE_S) / STEP_RISE_S, 0.0), 1.0)
+
+
 def drift_shape_feature(shape: str, tau_s: float = DRIFT_TAU_S, from_s: float = 0.0):
     """The feature of a drift of ``shape`` (``DRIFT_SHAPES``): a function of the state [-].
 
@@ -251,7 +262,7 @@ def drift_shape_feature(shape: str, tau_s: float = DRIFT_TAU_S, from_s: float = 
     ----------
     shape : ``"decay"``, ``"linear"`` or ``"step"``
     tau_s : time constant of ``decay``, time scale of ``linear`` (the change per ``tau_s``) [s]
-    from_s : time of a ``step`` [s] (it rises over one second, so CasADi can differentiate it)
+    from_s : time of a ``step`` [s] (``step_ramp``: it rises over STEP_RISE_S)
     """
     if shape not in DRIFT_SHAPES:
         raise InputError(f"drift shape {shape!r} is not one of {', '.join(DRIFT_SHAPES)}")
@@ -266,7 +277,7 @@ def drift_shape_feature(shape: str, tau_s: float = DRIFT_TAU_S, from_s: float = 
         elif shape == "linear":
             value = t / tau_s
         else:
-            value = ops.fmin(ops.fmax(t - from_s + 0.5, 0.0), 1.0)
+            value = step_ramp(t, from_s)
         return (_per_sample(value, state),)
 
     return feature

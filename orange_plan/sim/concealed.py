@@ -548,6 +548,21 @@ def suite_names() -> list[str]:
     return [label for label, *_ in _suite_entries()]
 
 
+def kept_by_name(known: Sequence[str], only: Collection[str] | None) -> list[bool]:
+    """Which of the case names ``known`` the names ``only`` keep (None: all of them).
+
+    Raises
+    ------
+    InputError
+        A name in ``only`` that is not one of ``known`` (the closest named).
+    """
+    unknown = [n for n in (only or ()) if n not in known]
+    if unknown:
+        raise InputError(f"unknown case '{unknown[0]}'; known: {', '.join(known)}"
+                         + close_match_hint(unknown[0], known))
+    return [only is None or name in only for name in known]
+
+
 def _suite_entries() -> list[tuple[str, tuple[str, ...], str | None, bool]]:
     """(name, terms, kind, labels) of one seed's cases: ``suite_requests``, then the ground
     null case with a classifier's surface labels."""
@@ -567,12 +582,9 @@ def concealed_suite(seeds: Iterable[int], duration_s: float = 1800.0,
     InputError
         A name in ``only`` that is not a case of the suite.
     """
-    unknown = sorted(set(only or ()) - set(suite_names()))
-    if unknown:
-        raise InputError(f"no concealed case is named {unknown[0]!r}"
-                         f"{close_match_hint(unknown[0], suite_names())}; the cases are "
-                         f"{', '.join(suite_names())}")
+    entries = _suite_entries()
+    kept = kept_by_name([name for name, *_ in entries], only)
     return [concealed_case(terms, seed, kind=kind, duration_s=duration_s, rate_Hz=rate_Hz,
                            labels=labels)
-            for seed in seeds for name, terms, kind, labels in _suite_entries()
-            if only is None or name in only]
+            for seed in seeds
+            for (_name, terms, kind, labels), keep in zip(entries, kept) if keep]

@@ -18,12 +18,14 @@ from orange_plan.physics.terms import (
     DRIFT_TAU_S,
     HVAC_SETPOINT_C,
     HVAC_SETPOINT_RANGE_C,
+    STEP_RISE_S,
     aero_drag_feature,
     drift_rolling_term,
     drift_shape_feature,
     drift_term,
     hvac_ambient_feature,
     hvac_ambient_term,
+    step_ramp,
 )
 from orange_plan.physics.wind import wind_speed_and_from
 
@@ -108,9 +110,7 @@ def _payload_scan(d: Design, resid, rows) -> _PayloadScan:
     x = np.where(rows[:, None], d.columns, 0.0)
     x = x / np.maximum(np.linalg.norm(x, axis=0), 1e-300)
     # sums over t >= t0 of r g, g^2 and g X, for every t0 at once
-    rg = np.cumsum((r * gr)[::-1])[::-1]
-    gg = np.cumsum((gr * gr)[::-1])[::-1]
-    gx = np.cumsum((gr[:, None] * x)[::-1], axis=0)[::-1]
+    rg, gg, gx = (_sums_to_end(v)[:-1] for v in (r * gr, gr * gr, gr[:, None] * x))
     explained = np.einsum("ij,ij->i", gx @ np.linalg.pinv(x.T @ x, rcond=1e-10), gx)
     spread = gg - explained
     # a change whose step the baseline's columns already span (one that starts where the
@@ -119,6 +119,13 @@ def _payload_scan(d: Design, resid, rows) -> _PayloadScan:
              & (spread > 1e-6 * gg[0]))
     gain = np.where(valid, rg**2 / np.where(spread > 0, spread, 1.0), -np.inf)
     return _PayloadScan(gain, valid, r)
+
+
+def _sums_to_end(x: np.ndarray) -> np.ndarray:
+    """The sums of ``x`` (along its first axis) from each sample to the end, one row per
+    sample and a last row of 0 (from one past the end): a step's inner products at every
+    change time at once (``_payload_scan``, ``_step_falls``)."""
+    return np.concatenate([np.cumsum(x[::-1], axis=0)[::-1], np.zeros((1, *x.shape[1:]))])
 
 
 def _payload_effect(d: Design, resid, rows) -> Effect:
@@ -266,8 +273,7 @@ def _refined(d: Design, resid, rows, family: DriftFamily, best: int, scale: np.n
     # of the tie, as a payload's change time (``_payload_effect``), not its start
     ties = np.flatnonzero(fall >= fall.max() - 1e-9 * abs(fall.max()))
     from_s = float(times[ties[ties.size // 2]])
-    column = np.clip(elapsed - from_s + 0.5, 0.0, 1.0) * scale
-    return DriftShape("step", chosen.tau_s, from_s), column
+    return DriftShape("step", chosen.tau_s, from_s), step_ramp(elapsed, from_s) * scale
 
 
 def _step_falls(elapsed, rows, scale, resid, q, times) -> np.ndarray:
@@ -275,27 +281,25 @@ def _step_falls(elapsed, rows, scale, resid, q, times) -> np.ndarray:
     each of ``times`` [s], each step judged by its part orthogonal to the baseline's columns
     (``q``, an orthonormal basis on the rows), -inf where the baseline spans the step.
 
-    The step is the ramp ``clip(elapsed - t + 0.5, 0, 1)`` (``drift_shape_feature``): 1 from
-    ``t + 0.5`` on, a fraction on the samples within half a second of ``t``. Its inner
-    products with the residual, itself and the basis are sums over the rows from some sample
-    to the end (cumulative sums, as a payload's scan, ``_payload_scan``) plus the few samples
-    of the ramp, so a scan over ~100 times costs two passes over the recording rather than a
+    The step is the term list's ramp (``physics.terms.step_ramp``): 1 from half of
+    STEP_RISE_S after ``t`` on, a fraction on the samples within half of it of ``t``. Its
+    inner products with the residual, itself and the basis are sums over the rows from some
+    sample to the end (``_sums_to_end``, as a payload's scan) plus the few samples of the
+    ramp, so a scan over ~100 times costs two passes over the recording rather than a
     projection of an n x 100 matrix."""
     w = np.where(rows, scale, 0.0)
     r = np.where(rows, resid, 0.0)
     qf = np.zeros((elapsed.size, q.shape[1]))
     qf[rows] = q
 
-    def from_each(x):  # sums from each sample to the end; one past the end: 0
-        return np.concatenate([np.cumsum(x[::-1], axis=0)[::-1], np.zeros((1, *x.shape[1:]))])
-
-    rs, ss, qs = from_each(r * w), from_each(w * w), from_each(qf * w[:, None])
-    lo = np.searchsorted(elapsed, times - 0.5, side="right")  # first sample past t - 0.5
-    hi = np.searchsorted(elapsed, times + 0.5, side="left")  # first sample at 1
+    rs, ss, qs = _sums_to_end(r * w), _sums_to_end(w * w), _sums_to_end(qf * w[:, None])
+    half = 0.5 * STEP_RISE_S
+    lo = np.searchsorted(elapsed, times - half, side="right")  # first sample on the ramp
+    hi = np.searchsorted(elapsed, times + half, side="left")  # first sample at 1
     band = lo[:, None] + np.arange(max(int(np.max(hi - lo, initial=0)), 1))[None, :]
     inside = band < hi[:, None]
     band = np.minimum(band, elapsed.size - 1)
-    ramp = np.where(inside, np.clip(elapsed[band] - times[:, None] + 0.5, 0.0, 1.0), 0.0)
+    ramp = np.where(inside, step_ramp(elapsed[band], times[:, None]), 0.0)
     part = ramp * w[band]  # the steps' values on their ramps' samples
     rc = rs[hi] + np.einsum("jk,jk->j", part, r[band])
     cc = ss[hi] + np.einsum("jk,jk->j", part, part)
