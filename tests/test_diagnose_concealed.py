@@ -245,7 +245,7 @@ def test_the_oracle_tells_a_term_in_the_recording_from_one_that_is_not(results):
     must call a concealed term detectable and a term that was never added undetectable."""
     for name in ("turning", "payload"):
         case, result = results(name)
-        (told,) = with_stated_limits(oracle(result, case.truth), result)
+        (told,) = with_stated_limits(oracle(result, case.truth), result, case.truth)
         assert told["detectable"] and told["t"] > MIN_T, (name, told)
         # found, so larger than the detection limit diagnosis stated for it
         assert told["effect_W"] > told["stated_limit_W"] > 0, (name, told)
@@ -255,6 +255,36 @@ def test_the_oracle_tells_a_term_in_the_recording_from_one_that_is_not(results):
     # a term that cannot apply to the run (a ground robot's hover) is not fitted at all
     (inapplicable,) = oracle(result, {"hover": {"hover_W": 40.0}})
     assert not inapplicable["detectable"] and inapplicable["t"] == 0.0
+
+
+def test_the_stated_limit_is_the_one_for_the_true_shape():
+    """``bench diagnose`` sets a scanned term against the limit diagnosis stated for the
+    alternative nearest its true shape or time (a time constant by ratio, a time by
+    difference), and against the one limit where none of that kind was stated; a ground
+    drift without a shape is the term list's cold-start decay."""
+    from types import SimpleNamespace
+
+    from orange_plan.bench.diagnose import _nearest_alternative, _true_alternative
+    from orange_plan.physics.terms import DRIFT_TAU_S
+
+    trial = SimpleNamespace(detectable_W=1.0, detectable_W_by_alternative=(
+        {"drift_span_s": 1800.0, "detectable_W": 2.0},
+        {"drift_tau_s": 300.0, "detectable_W": 3.0},
+        {"drift_tau_s": 1200.0, "detectable_W": 4.0},
+        {"drift_from_s": 100.0, "detectable_W": 5.0},
+        {"drift_from_s": 900.0, "detectable_W": 6.0}))
+    assert _nearest_alternative(trial, {"drift_tau_s": 650.0}) == 4.0  # 650/300 > 1200/650
+    assert _nearest_alternative(trial, {"drift_tau_s": 550.0}) == 3.0
+    assert _nearest_alternative(trial, {"drift_from_s": 480.0}) == 5.0
+    assert _nearest_alternative(trial, {"drift_span_s": 1800.0}) == 2.0
+    assert _nearest_alternative(trial, {"payload_from_s": 480.0}) == 1.0  # none stated
+    assert _nearest_alternative(trial, {}) == 1.0
+    assert _true_alternative("drift", {"drift_W": 2.0}) == {"drift_tau_s": DRIFT_TAU_S}
+    assert _true_alternative("drift_rolling", {"drift_rolling_kg": 0.1,
+                                               "drift_from_s": 700.0}) == {"drift_from_s": 700.0}
+    assert _true_alternative("payload", {"payload_kg": 5.0, "payload_from_s": 60.0}) == {
+        "payload_from_s": 60.0}
+    assert _true_alternative("turning", {"turn_J_per_rad": 30.0}) == {}
 
 
 def test_covariance_scales_columns_and_gives_a_zero_column_no_variance():

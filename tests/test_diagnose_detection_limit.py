@@ -28,6 +28,8 @@ from orange_plan.identify.diagnose import (
     fit_design,
     judge,
 )
+from orange_plan.identify.diagnosis.design import Effect
+from orange_plan.identify.diagnosis.selection import _unexplained_spread
 from orange_plan.sim.concealed import concealed_case
 
 MIN_T = DEFAULT_SETTINGS.min_t
@@ -127,3 +129,95 @@ def test_the_winds_limit_by_hand():
     # a large share floor wins
     big = SimpleNamespace(mean_power_W=1e3, settings=DEFAULT_SETTINGS)
     assert detection_limit_W(big, wind, None, current, 100.0) == pytest.approx(10.0)
+
+
+SCANNED = ("drift", "drift_rolling", "payload")
+"""Candidates of one coefficient whose shape or change time a scan chooses: they state a
+limit at every alternative of the scan (``limits_by_alternative``)."""
+
+
+def _forced(cand, column: np.ndarray):
+    """``cand`` with its scan's choice fixed to ``column`` (the same id, so the same t bar
+    with the scan's price)."""
+    effect = Effect(column[:, None], ("fixed",), np.array([-np.inf]), np.array([np.inf]),
+                    scanned=1)
+    return dataclasses.replace(cand, effect=lambda _d, _resid, _rows: effect)
+
+
+@pytest.mark.parametrize("name", SCANNED)
+def test_each_alternatives_limit_is_the_limit_of_a_fit_that_tried_it(name):
+    """The independent reference: the candidate refitted with its scan's choice fixed at the
+    alternative (a fresh cache: the effect is cached by id), judged, its own
+    ``detection_limit_W``. Equal up to the two fits' residuals (their variance and
+    autocorrelation time differ by a few per cent on the null case: 0.4-6 % measured), and
+    exactly equal at the shape the scan tried."""
+    d = _null().design
+    cand = _candidate(name)
+    fit, trial = _judged(d, cand)
+    alternatives = trial.detectable_W_by_alternative
+    assert len(alternatives) == len(fit.alternatives[name].params) > 30
+    columns = fit.alternatives[name].columns()
+    for k in (0, 1, 3, 5, 6, len(alternatives) // 2, len(alternatives) - 1):
+        fresh = dataclasses.replace(d, cache={})
+        forced = _forced(cand, columns[:, k])
+        reference = judge(fresh, [forced], fit_design(fresh, [forced]), fit_design(fresh, []))
+        assert alternatives[k]["detectable_W"] == pytest.approx(reference.detectable_W,
+                                                                rel=0.08), alternatives[k]
+    tried = fit.params_of(name)[0]
+    same = [a for a in alternatives if all(tried.get(k) == pytest.approx(v, abs=1e-6)
+                                           for k, v in a.items() if k != "detectable_W")]
+    for alternative in same:  # a line or a decay tried is on the grid; a refined step not
+        assert alternative["detectable_W"] == pytest.approx(trial.detectable_W, rel=1e-9)
+
+
+def test_a_slow_decay_has_a_higher_limit_than_a_fast_one():
+    """The constant loads take up more of a slower decay (4800 s over a 30-minute run is
+    nearly a line plus a constant), so less of it is its own: its limit is higher; a step
+    near the start is nearly a constant too."""
+    d = _null().design
+    _fit, trial = _judged(d, _candidate("drift"))
+    by = {tuple(k for k in a if k != "detectable_W")[0] + str(round(a.get("drift_tau_s", 0))): a
+          for a in trial.detectable_W_by_alternative}
+    taus = [by[f"drift_tau_s{t}"]["detectable_W"] for t in (600, 1200, 2400, 4800)]
+    assert taus == sorted(taus)
+    steps = [a for a in trial.detectable_W_by_alternative if "drift_from_s" in a]
+    assert steps[0]["detectable_W"] > 2 * steps[len(steps) // 2]["detectable_W"]
+
+
+def test_other_candidates_and_pairs_state_no_alternatives():
+    result = _null()
+    for trial in result.trials:
+        if "+" in trial.id or trial.id not in SCANNED:
+            assert trial.detectable_W_by_alternative == (), trial.id
+    rows = [c for c in result.to_dict()["candidates"] if c["id"] in SCANNED]
+    assert rows and all(len(c["detectable_W_by_alternative"]) > 30 for c in rows)
+    assert "by the shape or time its scan could choose" in result.evidence
+
+
+def test_unexplained_spread_by_hand():
+    """``c'c - c'x (x'x + w)^-1 x'c`` with x a column of ones and c = (1, 2, 3): 14 - 36 / 3
+    = 2 without the ridge (the centred sum of squares), 14 - 36 / 4 = 5 with w = 1; a
+    column the others span has only what the ridge keeps from it (12 - 36 / 4 = 3)."""
+    x = np.ones((3, 1))
+    c = np.array([[1.0, 2.0], [2.0, 2.0], [3.0, 2.0]])
+    np.testing.assert_allclose(_unexplained_spread(x, np.zeros(1), c), [2.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(_unexplained_spread(x, np.ones(1), c), [5.0, 3.0],
+                               atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(5, 60), p=st.integers(1, 4),
+       ridge=st.floats(0.0, 10.0))
+def test_property_unexplained_spread_is_the_ridge_least_squares_residual(seed, n, p, ridge):
+    """Against ``lstsq`` on the stacked system: never negative, never more than ``c'c``."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, p)) * rng.uniform(0.01, 100.0, size=p)
+    c = rng.normal(size=(n, 3))
+    prior = np.full(p, ridge)
+    got = _unexplained_spread(x, prior, c)
+    stacked = np.vstack([x, np.diag(np.sqrt(prior))])
+    padded = np.vstack([c, np.zeros((p, 3))])
+    beta = np.linalg.lstsq(stacked, padded, rcond=None)[0]
+    expected = np.sum((padded - stacked @ beta) ** 2, axis=0)
+    assert np.all(got >= 0) and np.all(got <= np.sum(c**2, axis=0) * (1 + 1e-12))
+    np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-9 * np.sum(c**2))

@@ -22,7 +22,7 @@ def test_trip_hvac_above_its_limit_is_found_with_its_coefficient(seed):
     span = np.ptp(case.frame["ambient_C"].to_numpy())
     assert TRIP_AMBIENT_SPAN_K[0] - 0.1 <= span <= TRIP_AMBIENT_SPAN_K[1] + 0.1
     result = diagnose(case.recording, case.ctx)
-    told = with_stated_limits(oracle(result, case.truth), result)
+    told = with_stated_limits(oracle(result, case.truth), result, case.truth)
     assert told[0]["effect_W"] > told[0]["stated_limit_W"]
     assert [(f.term, f.variant) for f in result.findings] == [("hvac", "hvac_ambient")]
     found = result.findings[0]

@@ -45,7 +45,7 @@ from orange_plan.identify.diagnose import (
     judge,
     payload_step,
 )
-from orange_plan.physics.terms import spec_id
+from orange_plan.physics.terms import DRIFT_TAU_S, spec_id
 
 TEST_SEEDS = (0, 1)
 """Seeds the test suite uses (tests/test_diagnose_concealed.py); the benchmark's default
@@ -111,20 +111,54 @@ def compare(case) -> CaseRow:
         ours_holdout_rmse_W=result.improved.cv_rmse_W, lasso_holdout_rmse_W=lasso_rmse,
         ours_seconds=ours_s, lasso_seconds=lasso_s,
         params=recovered_params(result, case.truth),
-        oracle=with_stated_limits(oracle(result, case.truth), result))
+        oracle=with_stated_limits(oracle(result, case.truth), result, case.truth))
 
 
-def with_stated_limits(told: list[dict], result) -> list[dict]:
+def with_stated_limits(told: list[dict], result, truth: dict) -> list[dict]:
     """Each oracle entry with ``stated_limit_W``: the detection limit diagnosis itself stated
-    for that term (``Trial.detectable_W``: its smallest over the term's candidates in the
-    last round each was tried), to set against the term's true size ``effect_W``: a miss
-    under the stated limit is one the user was told could happen."""
-    last = {t.id: t.detectable_W for t in result.trials if "+" not in t.id}
+    for that term, to set against the term's true size ``effect_W``: a miss under the stated
+    limit is one the user was told could happen. It is the smallest over the term's
+    candidates in the last round each was tried (``Trial.detectable_W``), and for a
+    candidate that states its limit per alternative of its scan (a drift's shapes, a
+    payload's change times: ``Trial.detectable_W_by_alternative``) the limit stated for the
+    alternative nearest the true one (``_nearest_alternative``): a drift's limit at the
+    shape the round happened to try says nothing of another shape."""
+    last = {t.id: t for t in result.trials if "+" not in t.id}
+    shapes = {concealed_id(term): _true_alternative(term, params)
+              for term, params in truth.items()}
     stated: dict[str, float] = {}
-    for cand_id, limit in last.items():
+    for cand_id, trial in last.items():
         sid = spec_id(cand_id)
+        limit = _nearest_alternative(trial, shapes.get(sid, {}))
         stated[sid] = min(limit, stated.get(sid, float("inf")))
     return [{**o, "stated_limit_W": stated.get(o["term"], float("nan"))} for o in told]
+
+
+def _true_alternative(term: str, params: dict) -> dict:
+    """A concealed term's true value of its scanned parameter (a drift's shape, a payload's
+    change time), in the parameters' names of ``Trial.detectable_W_by_alternative``; a
+    ground drift without a shape is the term list's default cold-start decay."""
+    keys = ("drift_span_s", "drift_tau_s", "drift_from_s", "payload_from_s")
+    found = {k: float(v) for k, v in params.items() if k in keys}
+    if not found and concealed_id(term) == "drift":
+        return {"drift_tau_s": DRIFT_TAU_S}
+    return found
+
+
+def _nearest_alternative(trial, true: dict) -> float:
+    """The limit ``trial`` stated for the alternative nearest ``true`` (a time constant by
+    ratio, a time by difference), or its one limit where it states none of that kind."""
+    if len(true) != 1:
+        return trial.detectable_W
+    ((key, value),) = true.items()
+    same = [a for a in trial.detectable_W_by_alternative if key in a]
+    if not same:
+        return trial.detectable_W
+
+    def distance(a: dict) -> float:
+        return abs(np.log(a[key] / value)) if key == "drift_tau_s" else abs(a[key] - value)
+
+    return float(min(same, key=distance)["detectable_W"])
 
 
 def oracle(result, truth: dict) -> list[dict]:

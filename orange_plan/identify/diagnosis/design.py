@@ -114,6 +114,18 @@ class Design:
 
 
 @dataclass(frozen=True)
+class Alternatives:
+    """The column a one-coefficient effect would have had at each other value its scan
+    could have chosen (a drift's shapes, a payload's change times): ``params`` one dict per
+    alternative, in the finding's parameter names (``drift_tau_s``, ``payload_from_s``...),
+    and ``columns()`` their columns on all samples (n, alternatives) [W per unit], built only
+    when asked (the detection limit per alternative, ``selection.limits_by_alternative``)."""
+
+    params: tuple[dict, ...]
+    columns: Callable[[], np.ndarray]
+
+
+@dataclass(frozen=True)
 class Effect:
     """A candidate's columns on one set of training rows.
 
@@ -131,6 +143,8 @@ class Effect:
         training rows (a payload's change time, a drift's shape, an HVAC's moved set-points,
         a label's delay and window, a wind's two components): each is charged like a
         coefficient by the information criterion (``fitting.Fit.bic``)
+    alternatives : the column at the scan's other choices (``Alternatives``), on the effect
+        fitted on all samples of a drift or a payload; None otherwise
     """
 
     columns: np.ndarray
@@ -140,6 +154,7 @@ class Effect:
     extra: dict = field(default_factory=dict)
     sd_scale: np.ndarray | None = None
     scanned: int = 0
+    alternatives: Alternatives | None = None
 
 
 @dataclass(frozen=True)

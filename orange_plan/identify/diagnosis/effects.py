@@ -5,12 +5,18 @@ training rows (a payload's change time, a drift's shape, a wind vector).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from orange_plan.identify.calibrate import autoregressive_inflation
-from orange_plan.identify.diagnosis.design import Design, Effect, _bounds, _surfaces_seen
+from orange_plan.identify.diagnosis.design import (
+    Alternatives,
+    Design,
+    Effect,
+    _bounds,
+    _surfaces_seen,
+)
 from orange_plan.identify.diagnosis.fitting import _covariance, _fit_rows
 from orange_plan.physics.model_builder import make_term, mass_exponents
 from orange_plan.physics.state import MotionState
@@ -148,7 +154,18 @@ def _payload_effect(d: Design, resid, rows) -> Effect:
     near = valid & (gain >= gain[k] - float(np.mean(r[rows] ** 2)) * tau)
     dt = float(np.median(np.diff(d.t_s)))
     sd = max(0.5 * float(np.ptp(d.t_s[near])), dt) if near.any() else dt
-    return payload_step(d, t0, sd)
+    return replace(payload_step(d, t0, sd), alternatives=_payload_alternatives(d, rows))
+
+
+def _payload_alternatives(d: Design, rows) -> Alternatives | None:
+    """A payload's change at each of ``settings.drift_step_times`` times over the 5-95 % of
+    the run its scan searches (``_payload_scan``), as the effect's alternatives, on the
+    effect fitted on all samples only (``_drift_alternatives``)."""
+    if not np.all(rows):
+        return None
+    times = d.t_s[-1] * np.linspace(0.05, 0.95, d.settings.drift_step_times)
+    return Alternatives(tuple({"payload_from_s": float(t)} for t in times),
+                        lambda: _mass_per_kg_W(d)[:, None] * (d.t_s[:, None] >= times))
 
 
 @dataclass(frozen=True)
@@ -222,7 +239,8 @@ def _drift_effect(d: Design, resid, rows) -> Effect:
             else _best_drift_shape(d, resid, rows, family))
     chosen, col = _refined(d, resid, rows, family, best, np.ones(d.n), "drift")
     return Effect(col[:, None], ("drift_W",), np.array([-np.inf]), np.array([np.inf]),
-                  _shape_params(chosen), scanned=_shape_scanned(chosen))
+                  _shape_params(chosen), scanned=_shape_scanned(chosen),
+                  alternatives=_drift_alternatives(family, None, rows))
 
 
 def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
@@ -251,7 +269,20 @@ def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
         chosen, col = _refined(d, resid, rows, family, best, rolling, "drift_rolling")
     base = d.base.coefficient("rolling_kg")
     return Effect(col[:, None], ("drift_rolling_kg",), np.array([-max(base, 0.0)]),
-                  np.array([np.inf]), _shape_params(chosen), scanned=_shape_scanned(chosen))
+                  np.array([np.inf]), _shape_params(chosen), scanned=_shape_scanned(chosen),
+                  alternatives=_drift_alternatives(family, rolling, rows))
+
+
+def _drift_alternatives(family: DriftFamily, scale, rows) -> Alternatives | None:
+    """Every shape of the drift family as the effect's alternatives (times ``scale`` per
+    sample, None: 1), on the effect fitted on all samples (``rows`` all true) only: that is
+    the fit whose detection limits are stated."""
+    if rows is None or not np.all(rows):
+        return None
+    params = tuple({k: v for k, (v, _sd) in _shape_params(s).items()} for s in family.shapes)
+    if scale is None:
+        return Alternatives(params, lambda: family.columns)
+    return Alternatives(params, lambda: family.columns * scale[:, None])
 
 
 def _refined(d: Design, resid, rows, family: DriftFamily, best: int, scale: np.ndarray,

@@ -5,7 +5,7 @@ inside the model (``polish``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -64,6 +64,8 @@ class Fit:
     fold_ss : held-out sum of squared errors per fold [W^2]
     x : the design's columns on all samples (n, k) [W per unit]
     n_scanned : the candidates' non-linear parameters chosen by a scan (``Effect.scanned``)
+    alternatives : candidate id -> its effect's ``Alternatives`` (a drift's other shapes, a
+        payload's other change times), for those that have them
     """
 
     theta: np.ndarray
@@ -78,6 +80,7 @@ class Fit:
     fold_ss: np.ndarray
     x: np.ndarray
     n_scanned: int = 0
+    alternatives: dict = field(default_factory=dict)
 
     def bic(self, tau: float) -> float:
         """Bayesian information criterion with ``n / tau`` effective samples, every
@@ -195,7 +198,8 @@ def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
     fold_ss = np.bincount(d.fold, (d.y - held) ** 2, minlength=d.settings.n_folds)
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
                float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x,
-               sum(e.scanned for e in effects))
+               sum(e.scanned for e in effects),
+               {c.id: e.alternatives for c, e in zip(chosen, effects) if e.alternatives})
 
 
 def _stack(d: Design, chosen, rows):

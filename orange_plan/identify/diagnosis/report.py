@@ -232,7 +232,34 @@ def _limits_sentence(d: Design, trials: list[Trial]) -> str:
     return (f"; a missing effect smaller than its detection limit could go unseen: from "
             f"{lo.detectable_W:.2g} W RMS ({_share_of_mean(d, lo.detectable_W)} of the mean "
             f"power, {lo.id}) to {hi.detectable_W:.2g} W "
-            f"({_share_of_mean(d, hi.detectable_W)}, {hi.id})")
+            f"({_share_of_mean(d, hi.detectable_W)}, {hi.id})" + _shape_limits(trials))
+
+
+def _shape_limits(trials: list[Trial]) -> str:
+    """The range of each scanned candidate's limits over the shapes or times its scan could
+    have chosen (``Trial.detectable_W_by_alternative``, its last round's), the extremes
+    named: its one limit is the shape tried's."""
+    last = {t.id: t for t in trials if t.detectable_W_by_alternative}
+    parts = []
+    for ident, trial in last.items():
+        finite = [a for a in trial.detectable_W_by_alternative if np.isfinite(a["detectable_W"])]
+        if finite:
+            lo = min(finite, key=lambda a: a["detectable_W"])
+            hi = max(finite, key=lambda a: a["detectable_W"])
+            parts.append(f"{ident} {lo['detectable_W']:.2g} W ({_alternative(lo)}) to "
+                         f"{hi['detectable_W']:.2g} W ({_alternative(hi)})")
+    return "; by the shape or time its scan could choose: " + ", ".join(parts) if parts else ""
+
+
+def _alternative(alt: dict) -> str:
+    """One alternative of a scan in words: a line, a decay, a step or a payload's change."""
+    if "drift_span_s" in alt:
+        return "a line over the run"
+    if "drift_tau_s" in alt:
+        return f"a decay of {alt['drift_tau_s']:.0f} s"
+    if "drift_from_s" in alt:
+        return f"a step at {alt['drift_from_s']:.0f} s"
+    return f"a change at {alt['payload_from_s']:.0f} s"
 
 
 def _share_of_mean(d: Design, power_W: float) -> str:

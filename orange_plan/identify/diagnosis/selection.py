@@ -29,7 +29,10 @@ class Trial:
     would have passed its t bar and power share in this round (a pair: the larger member's;
     ``detection_limit_W``). ``priced_out``: a single scanned candidate refused only by its
     scan's price, its t between ``settings.min_t`` and the bar with the price
-    (``_needed_t``); it may stand in for a candidate that passes (``_round_choice``)."""
+    (``_needed_t``); it may stand in for a candidate that passes (``_round_choice``).
+    ``detectable_W_by_alternative``: for a scanned candidate with one coefficient (a drift,
+    a payload), its detection limit at each other choice of its scan, as dicts of the
+    alternative's parameters and ``detectable_W`` (``limits_by_alternative``); () otherwise."""
 
     id: str
     gain: float
@@ -40,6 +43,7 @@ class Trial:
     folds: int
     detectable_W: float
     priced_out: bool = False
+    detectable_W_by_alternative: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -252,8 +256,9 @@ def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
     t_max = min(c.t for c in checks)
     # refused by the scan's price alone: the t check is the only one failed, and t >= min_t
     priced_out = len(new) == 1 and len(failed) == 1 and weak is not None and weak.t >= s.min_t
+    by_alternative = limits_by_alternative(d, new[0], fit, n_eff) if len(new) == 1 else ()
     return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds,
-                 limit_W, priced_out)
+                 limit_W, priced_out, by_alternative)
 
 
 def _needed_t(cand: Candidate, n_eff: float, settings: DiagnosisSettings) -> float:
@@ -293,6 +298,56 @@ def detection_limit_W(d: Design, cand: Candidate, fit: Fit, current: Fit,
         return float("inf")
     rms = np.sqrt(np.mean(fit.x[:, own] ** 2, axis=0))
     return max(share_W, float(np.min(need_t * fit.sd[own] * rms)))
+
+
+def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) -> tuple:
+    """The candidate's detection limit (``detection_limit_W``) at each alternative its scan
+    could have chosen (``fit.alternatives``: a drift's shapes, a payload's change times), as
+    ``{**the alternative's parameters, "detectable_W": W}``; () for a candidate without
+    alternatives or with more than one coefficient.
+
+    The limit depends on the shape: a slow decay that the constant loads partly span has
+    less of its own to be seen by than a step (``drift+turning`` seed 202: 1.21 W at the
+    300 s decay tried, 2.69 W at the true 1200 s decay), so the one limit of the shape tried
+    does not say what another shape could hide. An alternative's standard error in this fit
+    is ``sigma / sqrt(s)``, with ``s`` the squared norm of its column's part that the fit's
+    other columns (and the baseline's prior) do not explain: ``sigma`` is read off the fit's
+    own standard error of the shape tried, so its limit is the one ``detection_limit_W``
+    states, and every other alternative's is ``need_t sigma rms(x) / sqrt(s)``, the limit it
+    would have had in the tried one's place."""
+    alternatives = fit.alternatives.get(cand.id)
+    own = fit.owned(cand.id)
+    if alternatives is None or len(own) != 1 or not fit.sd[own[0]] > 0:
+        return ()
+    j = own[0]
+    columns = alternatives.columns()
+    others = np.delete(fit.x, j, axis=1)
+    prior = np.r_[d.prior_weight, np.zeros(others.shape[1] - d.prior_weight.size)]
+    spread = _unexplained_spread(others, prior, np.column_stack([fit.x[:, j], columns]))
+    if not spread[0] > 0:
+        return ()
+    sigma = fit.sd[j] * np.sqrt(spread[0])
+    need_t = _needed_t(cand, n_eff, d.settings)
+    share_W = d.settings.min_effect_share * d.mean_power_W
+    rms = np.sqrt(np.mean(columns**2, axis=0))
+    seen = spread[1:] > 1e-9 * np.sum(columns**2, axis=0)  # not all in the others' span
+    limit = np.where(seen, need_t * sigma * rms / np.sqrt(np.where(seen, spread[1:], 1.0)),
+                     np.inf)
+    return tuple({**params, "detectable_W": float(max(share_W, w))}
+                 for params, w in zip(alternatives.params, limit))
+
+
+def _unexplained_spread(x: np.ndarray, prior: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """Each of ``columns``' squared norm left once the columns ``x`` (with a ridge ``prior``
+    per coefficient, as the fit's Gram matrix has) explain what they can:
+    ``c'c - c'x (x'x + diag(prior))^-1 x'c``, from an orthonormal basis of ``x`` stacked
+    over ``diag(sqrt(prior))`` (a Gram matrix's inverse loses the small differences)."""
+    stacked = np.vstack([x, np.diag(np.sqrt(prior))])
+    scale = np.maximum(np.linalg.norm(stacked, axis=0), 1e-300)
+    u, sv, _ = np.linalg.svd(stacked / scale, full_matrices=False)
+    q = u[:, sv > 1e-10 * max(float(sv.max(initial=0.0)), 1e-300)]
+    padded = np.vstack([columns, np.zeros((prior.size, columns.shape[1]))])
+    return np.maximum(np.sum(columns**2, axis=0) - np.sum((q.T @ padded) ** 2, axis=0), 0.0)
 
 
 def _significance(cand: Candidate, fit: Fit, current: Fit, n_eff: float,
