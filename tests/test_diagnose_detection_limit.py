@@ -1,13 +1,14 @@
 """The detection limit a diagnosis states for each candidate (``detection_limit_W``): the
-smallest RMS power of that candidate which would have passed its t bar in that round.
+smallest RMS power of that candidate which the recording would show with 95 % probability in
+that round, i.e. pass its t bar with ``detection_power_z`` standard errors to spare.
 
 Why it is stated this way: the limit is computed from one fit's standard errors; the
 independent reference is the same recording with the candidate's own effect added at ``k``
 times the stated limit, diagnosed again by refitting (``fit_design``) and judging
-(``judge``). Each limit's worth of added effect must add one t bar (``MIN_T``): at twice
-the limit it passes, at a third of it (where the noise gave the candidate little t) it
-does not. A limit that was too low would let a user read "no missing physics found" as
-ruling out effects the recording could in fact have hidden.
+(``judge``). Each limit's worth of added effect must add one bar and the margin
+(``MIN_T + Z``): at twice the limit it passes, at a third of it (where the noise gave the
+candidate little t) it does not. A limit that was too low would let a user read "no
+missing physics found" as ruling out effects the recording could in fact have hidden.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from orange_plan.sim.concealed import concealed_case
 
 MIN_T = DEFAULT_SETTINGS.min_t
 MIN_EFFECT_SHARE = DEFAULT_SETTINGS.min_effect_share
+Z = DEFAULT_SETTINGS.detection_power_z
 
 LINEAR = ("battery_temperature", "turning", "inertia")
 """Candidates of one coefficient whose column does not depend on the residual (a payload's
@@ -70,8 +72,8 @@ def _unit(fit, i):
 @settings(max_examples=8, deadline=None, database=None, derandomize=True)
 @given(name=st.sampled_from(LINEAR), k=st.floats(1.0, 3.0))
 def test_each_limits_worth_of_effect_adds_one_t_bar(name, k):
-    """``t(k + 1) - t(k) = MIN_T``: the difference cancels the noise's own share of the t,
-    which a coefficient held at its physical bound (0) would otherwise hide."""
+    """``t(k + 1) - t(k) = MIN_T + Z``: the difference cancels the noise's own share of the
+    t, which a coefficient held at its physical bound (0) would otherwise hide."""
     d = _null().design
     cand = _candidate(name)
     fit, trial = _judged(d, cand)
@@ -81,11 +83,11 @@ def test_each_limits_worth_of_effect_adds_one_t_bar(name, k):
     assert t[0] > 0.0  # off its bound, where t is linear in the effect
     if trial.detectable_W <= MIN_EFFECT_SHARE * d.mean_power_W * (1 + 1e-9):
         # the power share, not the t bar, set this limit: a limit's worth is more than a bar
-        assert t[1] - t[0] >= MIN_T * 0.98, t
+        assert t[1] - t[0] >= (MIN_T + Z) * 0.98, t
     else:
         # exact when the null's own fit is off its bound (turning); held at 0, its residual
         # differs from the injected fits' and so does its autocorrelation time
-        assert t[1] - t[0] == pytest.approx(MIN_T, rel=0.02), t
+        assert t[1] - t[0] == pytest.approx(MIN_T + Z, rel=0.02), t
 
 
 def test_twice_the_limit_passes_the_t_bar_a_third_does_not():
@@ -118,14 +120,15 @@ def test_a_candidate_the_fit_cannot_move_has_no_limit():
 
 def test_the_winds_limit_by_hand():
     """The wind is judged by the likelihood ratio: residual 2 W RMS, 100 effective samples,
-    bar 4: an unexplained effect of RMS a is seen from ``100 ln(4 / (4 - a^2)) = 16`` on,
-    a = 2 sqrt(1 - exp(-0.16)) = 0.76904 W; the power share floor (1 % of 10 W) is below."""
+    bar 4 and 1.645 to spare: an unexplained effect of RMS a is seen with 95 % probability
+    from ``100 ln(4 / (4 - a^2)) = 5.645^2`` on, a = 2 sqrt(1 - exp(-0.31866)) = 1.04475 W;
+    the power share floor (1 % of 10 W) is below."""
     from types import SimpleNamespace
 
     wind = _candidate("wind")
     d = SimpleNamespace(mean_power_W=10.0, settings=DEFAULT_SETTINGS)
     current = SimpleNamespace(rmse_W=2.0)
-    assert detection_limit_W(d, wind, None, current, 100.0) == pytest.approx(0.7690415, rel=1e-6)
+    assert detection_limit_W(d, wind, None, current, 100.0) == pytest.approx(1.0447535, rel=1e-6)
     # a large share floor wins
     big = SimpleNamespace(mean_power_W=1e3, settings=DEFAULT_SETTINGS)
     assert detection_limit_W(big, wind, None, current, 100.0) == pytest.approx(10.0)

@@ -17,11 +17,12 @@ the baseline and of each method, the relative error and the standard error of ea
 parameter (ours), and the seconds each method took (the recording's generation excluded).
 
 How much of each concealed term the recording holds (``oracle``): diagnosis's own fit and
-test, *told* the true terms (and a payload's true change time), each term judged against the
-others. A term whose oracle t is under ``DiagnosisSettings.min_t``, or whose oracle held-out
-gain is under ``DiagnosisSettings.min_gain``, could not have been named at diagnosis's
-significance by any choice of terms: the noise of that recording hides it. The summary counts misses among the detectable terms
-apart, so that a selection failure and an effect the data do not carry are told apart.
+test, *told* the true terms (a payload its true change time, a drift its true shape), each
+term judged against the others. A term whose oracle t is under ``DiagnosisSettings.min_t``,
+or whose oracle held-out gain is under ``DiagnosisSettings.min_gain``, could not have been
+named at diagnosis's significance by any choice of terms: the noise of that recording hides
+it. The summary counts misses among the detectable terms apart, so that a selection failure
+and an effect the data do not carry are told apart.
 
 Each oracle entry also sets the term's true size (its RMS power in that fit, ``effect_W``)
 against the detection limit diagnosis itself stated for it (``stated_limit_W``, no truth
@@ -41,6 +42,7 @@ from orange_plan.identify.diagnose import (
     candidate_columns,
     candidates,
     diagnose,
+    drift_of_shape,
     fit_design,
     judge,
     payload_step,
@@ -163,7 +165,9 @@ def _nearest_alternative(trial, true: dict) -> float:
 
 def oracle(result, truth: dict) -> list[dict]:
     """Each concealed term's t, held-out gain and RMS power [W] when diagnosis is told the
-    true terms (module docstring): ``{"term", "t", "gain_pct", "effect_W", "detectable"}``."""
+    true terms, a payload its change time and a drift its shape (module docstring; a drift
+    left to its scan took another shape's fit of the noise as its size: 1.10 W on
+    ``drift_rolling`` seed 303, whose true 313 s decay is 0.40 W): ``{"term", "t", "gain_pct", "effect_W", "detectable"}``."""
     d = replace(result.design, cache={})  # the scanned payload's effects are cached by id
     pool = {c.id: c for c in candidates()}
     told, out = [], []
@@ -176,6 +180,10 @@ def oracle(result, truth: dict) -> list[dict]:
         if term == "payload":
             t0 = params["payload_from_s"]
             cand = replace(cand, effect=lambda d, _resid, _rows, t0=t0: payload_step(d, t0))
+        elif cand.id in ("drift", "drift_rolling"):
+            shape = _true_alternative(term, params)
+            cand = replace(cand, effect=lambda d, _resid, _rows, c=cand.id, shape=shape:
+                           drift_of_shape(d, c, shape))
         told.append(cand)
     if not told:
         return out

@@ -73,7 +73,7 @@ parameters in BIC: noise, an autocorrelated disturbance, or a column that carrie
 (a wrong sensor) fail at least one of these. A null result says so explicitly, with the best
 candidate's figures as evidence and what the recording could not have shown: every trial
 carries its candidate's detection limit (``selection.detection_limit_W``), the smallest RMS power of
-it that would have passed its t bar, so that "nothing found" is read as "nothing above
+it that would pass its t bar with 95 % probability, so that "nothing found" is read as "nothing above
 these sizes", not as "nothing".
 
 A term whose coefficients are all 0 in the scenario counts as left out (a switched-off term),
@@ -94,7 +94,7 @@ from orange_plan.identify.diagnosis.candidates import (
     candidates,
 )
 from orange_plan.identify.diagnosis.design import LABEL_CANDIDATE, Candidate, Design, Effect
-from orange_plan.identify.diagnosis.effects import payload_step
+from orange_plan.identify.diagnosis.effects import drift_of_shape, payload_step
 from orange_plan.identify.diagnosis.fitting import Fit, fit_design, polish
 from orange_plan.identify.diagnosis.labels import label_lag, labelled_design, surface_labels
 from orange_plan.identify.diagnosis.pipeline import Diagnosis, diagnose
@@ -118,7 +118,7 @@ __all__ = [
     "AS_GOOD_HELD_OUT", "DEFAULT_SETTINGS", "LABEL_CANDIDATE", "MASK_EACH_OTHER",
     "TERM_CANDIDATES", "Candidate", "Design", "Diagnosis", "DiagnosisSettings", "Effect",
     "Finding", "Fit", "Selection", "Trial", "build_design", "candidate_columns", "candidates",
-    "detection_limit_W", "diagnose", "fit_design", "improved_model", "judge", "label_lag",
-    "labelled_design", "lag_columns", "payload_mass_kg", "payload_step", "polish",
+    "detection_limit_W", "diagnose", "drift_of_shape", "fit_design", "improved_model", "judge",
+    "label_lag", "labelled_design", "lag_columns", "payload_mass_kg", "payload_step", "polish",
     "power_lag_s", "select", "surface_labels",
 ]

@@ -211,18 +211,36 @@ def _drift_shapes(d: Design) -> DriftFamily:
         if t_s is d.t_s and settings == d.settings:
             return family
     span = max(float(d.t_s[-1] - d.t_s[0]), 1.0)
-    elapsed = d.t_s - d.t_s[0]
-    state = MotionState(speed_mps=np.ones(d.n), channels={"elapsed_s": elapsed})
     step_times = span * np.linspace(0.05, 0.95, d.settings.drift_step_times)
     shapes = [DriftShape("linear", span, 0.0),
               *(DriftShape("decay", tau, 0.0) for tau in d.settings.drift_taus_s),
               *(DriftShape("step", span, float(t0)) for t0 in step_times)]
-    columns = np.column_stack([np.broadcast_to(np.asarray(
-        drift_shape_feature(s.shape, s.tau_s, s.from_s)(state)[0], float), (d.n,))
-        for s in shapes])
-    family = DriftFamily(shapes, columns)
+    family = DriftFamily(shapes, _shape_columns(d, shapes))
     _DRIFT_FAMILIES[:] = [*_DRIFT_FAMILIES[-3:], (d.t_s, d.settings, family)]
     return family
+
+
+def _shape_columns(d: Design, shapes: list[DriftShape]) -> np.ndarray:
+    """Each drift shape's feature over the recording's elapsed time, one column per shape
+    (n, shapes) [-] (``physics.terms.drift_shape_feature``)."""
+    elapsed = d.t_s - d.t_s[0]
+    state = MotionState(speed_mps=np.ones(d.n), channels={"elapsed_s": elapsed})
+    return np.column_stack([np.broadcast_to(np.asarray(
+        drift_shape_feature(s.shape, s.tau_s, s.from_s)(state)[0], float), (d.n,))
+        for s in shapes])
+
+
+def _drift_as_effect(d: Design, term_id: str, column: np.ndarray, shape: DriftShape,
+                     alternatives=None) -> Effect:
+    """A power drift's (``drift_W``, either sign) or the rolling coefficient's
+    (``drift_rolling_kg``, never below minus the baseline's coefficient) column of one
+    shape as the candidate's effect, the shape its parameters."""
+    if term_id == "drift_rolling":
+        names, lower = ("drift_rolling_kg",), -max(d.base.coefficient("rolling_kg"), 0.0)
+    else:
+        names, lower = ("drift_W",), -np.inf
+    return Effect(column[:, None], names, np.array([lower]), np.array([np.inf]),
+                  _shape_params(shape), scanned=_shape_scanned(shape), alternatives=alternatives)
 
 
 def _drift_effect(d: Design, resid, rows) -> Effect:
@@ -238,9 +256,7 @@ def _drift_effect(d: Design, resid, rows) -> Effect:
     best = (family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0)) if resid is None
             else _best_drift_shape(d, resid, rows, family))
     chosen, col = _refined(d, resid, rows, family, best, np.ones(d.n), "drift")
-    return Effect(col[:, None], ("drift_W",), np.array([-np.inf]), np.array([np.inf]),
-                  _shape_params(chosen), scanned=_shape_scanned(chosen),
-                  alternatives=_drift_alternatives(family, None, rows))
+    return _drift_as_effect(d, "drift", col, chosen, _drift_alternatives(family, None, rows))
 
 
 def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
@@ -267,10 +283,8 @@ def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
     if chosen.shape == "step" and not _rolling_step_earned(d, resid, rows, col):
         best = _best_drift_shape(d, resid, rows, family, columns, "drift_rolling", True)
         chosen, col = _refined(d, resid, rows, family, best, rolling, "drift_rolling")
-    base = d.base.coefficient("rolling_kg")
-    return Effect(col[:, None], ("drift_rolling_kg",), np.array([-max(base, 0.0)]),
-                  np.array([np.inf]), _shape_params(chosen), scanned=_shape_scanned(chosen),
-                  alternatives=_drift_alternatives(family, rolling, rows))
+    return _drift_as_effect(d, "drift_rolling", col, chosen,
+                            _drift_alternatives(family, rolling, rows))
 
 
 def _drift_alternatives(family: DriftFamily, scale, rows) -> Alternatives | None:
@@ -629,6 +643,23 @@ def _drift_term_of(params: dict, term_id: str = "drift"):
     if "drift_span_s" in params:
         return make("linear", params["drift_span_s"])
     return make("decay", params.get("drift_tau_s", DRIFT_TAU_S))
+
+
+def drift_of_shape(d: Design, term_id: str, params: dict) -> Effect:
+    """The ``drift`` (or ``drift_rolling``) candidate's effect at the shape ``params`` name
+    (``drift_from_s``, ``drift_span_s`` or ``drift_tau_s``, as a finding's), with nothing
+    scanned: a drift told its shape, as ``payload_step`` is a payload told its time."""
+    span = max(float(d.t_s[-1] - d.t_s[0]), 1.0)
+    if "drift_from_s" in params:
+        shape = DriftShape("step", span, float(params["drift_from_s"]))
+    elif "drift_span_s" in params:
+        shape = DriftShape("linear", float(params["drift_span_s"]), 0.0)
+    else:
+        shape = DriftShape("decay", float(params.get("drift_tau_s", DRIFT_TAU_S)), 0.0)
+    column = _shape_columns(d, [shape])[:, 0]
+    if term_id == "drift_rolling":
+        column = column * d.columns[:, d.base.names.index("rolling_kg")]
+    return replace(_drift_as_effect(d, term_id, column, shape), scanned=0)
 
 
 def payload_step(d: Design, t0: float, sd: float = 0.0) -> Effect:

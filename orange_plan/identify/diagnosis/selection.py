@@ -270,34 +270,43 @@ def _needed_t(cand: Candidate, n_eff: float, settings: DiagnosisSettings) -> flo
     return settings.min_t + np.sqrt(2.0 * np.log(np.log(max(n_eff, 16.0))))
 
 
+def _limit_t(cand: Candidate, n_eff: float, settings: DiagnosisSettings) -> float:
+    """The t a candidate's effect must have in expectation to pass its bar (``_needed_t``)
+    with the detection probability of ``settings.detection_power_z``."""
+    return _needed_t(cand, n_eff, settings) + settings.detection_power_z
+
+
 def detection_limit_W(d: Design, cand: Candidate, fit: Fit, current: Fit,
                       n_eff: float) -> float:
-    """The smallest RMS power [W] the candidate could have added to the recording and still
-    passed its t bar and its power share (``settings.min_effect_share``) in ``fit``.
+    """The smallest RMS power [W] of the candidate that the recording would show with 95 %
+    probability: that passes its t bar, with ``settings.detection_power_z`` standard errors
+    to spare, and its power share (``settings.min_effect_share``) in ``fit``.
 
-    A coefficient's t is ``|theta| / sd``, and its power's RMS is ``|theta| rms(x)``, so the
-    t bar is reached from ``need_t sd rms(x)`` on; a term is significant when its strongest
-    coefficient is, so the limit is the smallest over its coefficients. The wind is judged
-    by the likelihood ratio ``n_eff ln(s0^2 / s1^2)``: an effect of RMS ``a`` that the
-    model had not explained lowers ``s1^2`` to ``s0^2 - a^2``, so its limit is
-    ``s0 sqrt(1 - exp(-need_t^2 / n_eff))``. The held-out gain and the folds are not in it:
-    it says what the noise hides, not what the cross-validation would accept. An effect
-    below it could have been missed; one well above it (twice) would have passed the t bar.
+    A coefficient's t is ``|theta| / sd``, and its power's RMS is ``|theta| rms(x)``; its
+    estimate scatters by ``sd``, so the t bar is passed with 95 % probability from
+    ``(need_t + z) sd rms(x)`` on (``_limit_t``; at ``need_t sd rms(x)`` it is a coin
+    toss); a term is significant when its strongest coefficient is, so the limit is the
+    smallest over its coefficients. The wind is judged by the likelihood ratio
+    ``n_eff ln(s0^2 / s1^2)``, as a t: an effect of RMS ``a`` that the model had not
+    explained lowers ``s1^2`` to ``s0^2 - a^2``, so its limit is
+    ``s0 sqrt(1 - exp(-(need_t + z)^2 / n_eff))``. The held-out gain and the folds are not
+    in it: it says what the noise hides, not what the cross-validation would accept. An
+    effect below it could have been missed; one above it is missed 1 time in 20 or less.
     A drift's limit is its shape's in this fit: a shape the baseline's columns partly span
     (a slow decay, which the constant loads take up in part) has a higher one, so the
     statement holds for the shape tried (``drift+turning`` seed 202: 1.21 W at the 300 s
     decay tried, 2.69 W at the true 1200 s decay, whose 1.65 W was missed).
     """
-    need_t = _needed_t(cand, n_eff, d.settings)
+    limit_t = _limit_t(cand, n_eff, d.settings)
     share_W = d.settings.min_effect_share * d.mean_power_W
     if cand.id == "wind":
         s0 = current.rmse_W
-        return max(share_W, float(s0 * np.sqrt(-np.expm1(-need_t**2 / max(n_eff, 1.0)))))
+        return max(share_W, float(s0 * np.sqrt(-np.expm1(-limit_t**2 / max(n_eff, 1.0)))))
     own = [i for i in fit.owned(cand.id) if fit.sd[i] > 0]
     if not own:
         return float("inf")
     rms = np.sqrt(np.mean(fit.x[:, own] ** 2, axis=0))
-    return max(share_W, float(np.min(need_t * fit.sd[own] * rms)))
+    return max(share_W, float(np.min(limit_t * fit.sd[own] * rms)))
 
 
 def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) -> tuple:
@@ -313,7 +322,7 @@ def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) ->
     is ``sigma / sqrt(s)``, with ``s`` the squared norm of its column's part that the fit's
     other columns (and the baseline's prior) do not explain: ``sigma`` is read off the fit's
     own standard error of the shape tried, so its limit is the one ``detection_limit_W``
-    states, and every other alternative's is ``need_t sigma rms(x) / sqrt(s)``, the limit it
+    states, and every other alternative's is ``(need_t + z) sigma rms(x) / sqrt(s)``, the limit it
     would have had in the tried one's place."""
     alternatives = fit.alternatives.get(cand.id)
     own = fit.owned(cand.id)
@@ -327,11 +336,11 @@ def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) ->
     if not spread[0] > 0:
         return ()
     sigma = fit.sd[j] * np.sqrt(spread[0])
-    need_t = _needed_t(cand, n_eff, d.settings)
+    limit_t = _limit_t(cand, n_eff, d.settings)
     share_W = d.settings.min_effect_share * d.mean_power_W
     rms = np.sqrt(np.mean(columns**2, axis=0))
     seen = spread[1:] > 1e-9 * np.sum(columns**2, axis=0)  # not all in the others' span
-    limit = np.where(seen, need_t * sigma * rms / np.sqrt(np.where(seen, spread[1:], 1.0)),
+    limit = np.where(seen, limit_t * sigma * rms / np.sqrt(np.where(seen, spread[1:], 1.0)),
                      np.inf)
     return tuple({**params, "detectable_W": float(max(share_W, w))}
                  for params, w in zip(alternatives.params, limit))

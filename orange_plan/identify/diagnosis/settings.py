@@ -81,6 +81,12 @@ class DiagnosisSettings:
         one explanation over another that draws nearly the same power [-] (2: "positive" on
         Kass and Raftery's scale): a rolling coefficient's step is named in a payload's place
         only with it, and a round chooses by the criterion only with it
+    detection_power_z : the stated detection limits are the effects found with this
+        standard normal quantile's probability [-] (1.645: 95 %): a coefficient's estimate
+        scatters by one standard error about its true value, so an effect whose expected t
+        is exactly the bar is seen only half the time; the limit adds this many standard
+        errors to the bar (the detection limit of IUPAC and Currie, 1968: the true value
+        missed with a probability of 5 %)
     """
 
     min_gain: float = 0.02
@@ -108,6 +114,7 @@ class DiagnosisSettings:
     payload_step_spread: float = 0.01
     hvac_setpoint_step_K: float = 0.25
     min_bic_evidence: float = 2.0
+    detection_power_z: float = 1.645
 
 
 DEFAULT_SETTINGS = DiagnosisSettings()
