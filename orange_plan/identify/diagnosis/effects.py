@@ -164,8 +164,12 @@ def _payload_alternatives(d: Design, rows) -> Alternatives | None:
     if not np.all(rows):
         return None
     times = d.t_s[-1] * np.linspace(0.05, 0.95, d.settings.drift_step_times)
+    # the columns' inputs, not the design: the design's cache holds this effect, and a
+    # closure over the design would make a cycle that keeps every fit of the recording (a
+    # few GB over a benchmark's cases) until the cyclic collector happens to run
+    per_kg, t_s = _mass_per_kg_W(d), d.t_s
     return Alternatives(tuple({"payload_from_s": float(t)} for t in times),
-                        lambda: _mass_per_kg_W(d)[:, None] * (d.t_s[:, None] >= times))
+                        lambda: per_kg[:, None] * (t_s[:, None] >= times))
 
 
 @dataclass(frozen=True)
