@@ -142,7 +142,7 @@ def test_the_scan_equals_a_fit_of_every_pair_by_brute_force(short_case_design):
     baseline's (scipy's ``nnls`` on the columns' parts orthogonal to the baseline)."""
     from scipy.optimize import nnls
 
-    from orange_plan.identify.diagnosis.effects import _hvac_scan
+    from orange_plan.identify.diagnosis.hvac_effects import _hvac_scan
 
     d, resid = short_case_design
     rows = d.fold != 0
@@ -171,7 +171,7 @@ def test_the_scan_keeps_the_set_point_nearest_20_C_among_those_it_cannot_tell_ap
         short_case_design):
     """Heating set-points above the warmest ambient give one and the same column beside
     the constant loads: a tie, and 20 C (or the nearest member of the tie) is reported."""
-    from orange_plan.identify.diagnosis.effects import _hvac_ambient_effect
+    from orange_plan.identify.diagnosis.hvac_effects import _hvac_ambient_effect
 
     d, resid = short_case_design
     rows = np.ones(d.n, bool)

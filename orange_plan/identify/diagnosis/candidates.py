@@ -17,13 +17,13 @@ from orange_plan.identify.diagnosis.design import (
 from orange_plan.identify.diagnosis.effects import (
     _drift_effect,
     _drift_rolling_effect,
-    _hvac_ambient_effect,
     _needs_mass,
     _payload_effect,
     _surface_effect,
     _term_effect,
     _wind_effect,
 )
+from orange_plan.identify.diagnosis.hvac_effects import _hvac_ambient_effect
 from orange_plan.identify.diagnosis.labels import _label_effect, _needs_labels, surface_labels
 from orange_plan.physics.terms import TERMS
 
