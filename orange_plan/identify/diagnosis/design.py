@@ -112,6 +112,12 @@ class Design:
     def n(self) -> int:
         return self.y.size
 
+    @property
+    def rolling_column(self) -> np.ndarray:
+        """The baseline's rolling column: power per unit of its ``rolling_kg`` [W/kg], what a
+        per-surface, labelled or drifting rolling coefficient scales."""
+        return self.columns[:, self.base.names.index("rolling_kg")]
+
 
 @dataclass(frozen=True)
 class Alternatives:

@@ -62,7 +62,7 @@ def _term_columns(d: Design, term_id: str, term=None) -> Effect:
 def _surface_effect(d: Design, _resid, _rows) -> Effect:
     """Per-surface change of the rolling coefficient: ``rolling_kg_<s> - rolling_kg`` on the
     samples on surface s (the baseline's one coefficient covers every surface)."""
-    rolling = d.columns[:, d.base.names.index("rolling_kg")]
+    rolling = d.rolling_column
     code = np.broadcast_to(np.asarray(d.state.surface_code), (d.n,))
     names = _surfaces_seen(d)
     cols = np.stack([rolling * (code == d.world.map.surface_names.index(s)) for s in names], 1)
@@ -256,7 +256,8 @@ def _drift_effect(d: Design, resid, rows) -> Effect:
     best = (family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0)) if resid is None
             else _best_drift_shape(d, resid, rows, family))
     chosen, col = _refined(d, resid, rows, family, best, np.ones(d.n), "drift")
-    return _drift_as_effect(d, "drift", col, chosen, _drift_alternatives(family, None, rows))
+    return _drift_as_effect(d, "drift", col, chosen,
+                            _drift_alternatives(family, np.ones(d.n), rows))
 
 
 def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
@@ -273,7 +274,7 @@ def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
     (``turning+payload`` seed 0 named a rolling step for its payload at a BIC 0.3 apart,
     ``drift_rolling`` seed 3 a payload for its rolling step at a BIC 140 apart)."""
     family = _drift_shapes(d)
-    rolling = d.columns[:, d.base.names.index("rolling_kg")]
+    rolling = d.rolling_column
     columns = family.columns * rolling[:, None]  # one per shape, for the choice
     if resid is None:
         best = family.shapes.index(DriftShape("decay", DRIFT_TAU_S, 0.0))
@@ -287,15 +288,13 @@ def _drift_rolling_effect(d: Design, resid, rows) -> Effect:
                             _drift_alternatives(family, rolling, rows))
 
 
-def _drift_alternatives(family: DriftFamily, scale, rows) -> Alternatives | None:
+def _drift_alternatives(family: DriftFamily, scale: np.ndarray, rows) -> Alternatives | None:
     """Every shape of the drift family as the effect's alternatives (times ``scale`` per
-    sample, None: 1), on the effect fitted on all samples (``rows`` all true) only: that is
-    the fit whose detection limits are stated."""
+    sample, as ``_refined``'s column), on the effect fitted on all samples (``rows`` all
+    true) only: that is the fit whose detection limits are stated."""
     if rows is None or not np.all(rows):
         return None
     params = tuple({k: v for k, (v, _sd) in _shape_params(s).items()} for s in family.shapes)
-    if scale is None:
-        return Alternatives(params, lambda: family.columns)
     return Alternatives(params, lambda: family.columns * scale[:, None])
 
 
@@ -443,31 +442,32 @@ def _rolling_step_earned(d: Design, resid, rows, column) -> bool:
     return evidence >= d.settings.min_bic_evidence
 
 
-def _drift_term_of(params: dict, term_id: str = "drift"):
-    """The ``drift`` (or ``drift_rolling``) term of a finding's shape (its parameters name
-    it)."""
-    make = drift_rolling_term if term_id == "drift_rolling" else drift_term
+def _shape_of(params: dict) -> DriftShape:
+    """The drift shape a finding's parameters name (``_shape_params`` writes them):
+    ``drift_from_s`` a step, ``drift_span_s`` a line, else a decay (at ``drift_tau_s``,
+    default the term list's cold-start DRIFT_TAU_S)."""
     if "drift_from_s" in params:
-        return make("step", from_s=params["drift_from_s"])
+        return DriftShape("step", DRIFT_TAU_S, float(params["drift_from_s"]))
     if "drift_span_s" in params:
-        return make("linear", params["drift_span_s"])
-    return make("decay", params.get("drift_tau_s", DRIFT_TAU_S))
+        return DriftShape("linear", float(params["drift_span_s"]), 0.0)
+    return DriftShape("decay", float(params.get("drift_tau_s", DRIFT_TAU_S)), 0.0)
+
+
+def _drift_term_of(params: dict, term_id: str = "drift"):
+    """The ``drift`` (or ``drift_rolling``) term of a finding's shape (``_shape_of``)."""
+    make = drift_rolling_term if term_id == "drift_rolling" else drift_term
+    shape = _shape_of(params)
+    return make(shape.shape, shape.tau_s, shape.from_s)
 
 
 def drift_of_shape(d: Design, term_id: str, params: dict) -> Effect:
     """The ``drift`` (or ``drift_rolling``) candidate's effect at the shape ``params`` name
-    (``drift_from_s``, ``drift_span_s`` or ``drift_tau_s``, as a finding's), with nothing
-    scanned: a drift told its shape, as ``payload_step`` is a payload told its time."""
-    span = max(float(d.t_s[-1] - d.t_s[0]), 1.0)
-    if "drift_from_s" in params:
-        shape = DriftShape("step", span, float(params["drift_from_s"]))
-    elif "drift_span_s" in params:
-        shape = DriftShape("linear", float(params["drift_span_s"]), 0.0)
-    else:
-        shape = DriftShape("decay", float(params.get("drift_tau_s", DRIFT_TAU_S)), 0.0)
+    (``_shape_of``), with nothing scanned: a drift told its shape, as ``payload_step`` is a
+    payload told its time."""
+    shape = _shape_of(params)
     column = _shape_columns(d, [shape])[:, 0]
     if term_id == "drift_rolling":
-        column = column * d.columns[:, d.base.names.index("rolling_kg")]
+        column = column * d.rolling_column
     return replace(_drift_as_effect(d, term_id, column, shape), scanned=0)
 
 

@@ -84,7 +84,7 @@ def _label_columns(d: Design, lag_samples: int, window_samples: int = 0) -> np.n
         if key not in d.cache:
             d.cache[key] = _majority(code, len(own), window_samples)
         code = d.cache[key]
-    rolling = d.columns[:, d.base.names.index("rolling_kg")]
+    rolling = d.rolling_column
     later = code[np.minimum(np.arange(d.n) + lag_samples, d.n - 1)]
     return np.stack([rolling * (later == i) for i in range(len(own))], axis=1)
 

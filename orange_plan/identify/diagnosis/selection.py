@@ -297,16 +297,24 @@ def detection_limit_W(d: Design, cand: Candidate, fit: Fit, current: Fit,
     statement holds for the shape tried (``drift+turning`` seed 202: 1.21 W at the 300 s
     decay tried, 2.69 W at the true 1200 s decay, whose 1.65 W was missed).
     """
-    limit_t = _limit_t(cand, n_eff, d.settings)
-    share_W = d.settings.min_effect_share * d.mean_power_W
     if cand.id == "wind":
+        limit_t = _limit_t(cand, n_eff, d.settings)
         s0 = current.rmse_W
+        share_W = d.settings.min_effect_share * d.mean_power_W
         return max(share_W, float(s0 * np.sqrt(-np.expm1(-limit_t**2 / max(n_eff, 1.0)))))
     own = [i for i in fit.owned(cand.id) if fit.sd[i] > 0]
     if not own:
         return float("inf")
     rms = np.sqrt(np.mean(fit.x[:, own] ** 2, axis=0))
-    return max(share_W, float(np.min(limit_t * fit.sd[own] * rms)))
+    return float(np.min(_seen_from_W(d, cand, n_eff, fit.sd[own], rms)))
+
+
+def _seen_from_W(d: Design, cand: Candidate, n_eff: float, sd, rms) -> np.ndarray:
+    """The RMS power [W] from which a coefficient with standard error ``sd`` and a column of
+    RMS ``rms`` is seen with the detection probability (``_limit_t``), and has its power
+    share (``settings.min_effect_share``): ``max(share, (need_t + z) sd rms)``."""
+    share_W = d.settings.min_effect_share * d.mean_power_W
+    return np.maximum(share_W, _limit_t(cand, n_eff, d.settings) * np.asarray(sd) * rms)
 
 
 def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) -> tuple:
@@ -336,13 +344,11 @@ def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) ->
     if not spread[0] > 0:
         return ()
     sigma = fit.sd[j] * np.sqrt(spread[0])
-    limit_t = _limit_t(cand, n_eff, d.settings)
-    share_W = d.settings.min_effect_share * d.mean_power_W
     rms = np.sqrt(np.mean(columns**2, axis=0))
     seen = spread[1:] > 1e-9 * np.sum(columns**2, axis=0)  # not all in the others' span
-    limit = np.where(seen, limit_t * sigma * rms / np.sqrt(np.where(seen, spread[1:], 1.0)),
-                     np.inf)
-    return tuple({**params, "detectable_W": float(max(share_W, w))}
+    sd = sigma / np.sqrt(np.where(seen, spread[1:], 1.0))
+    limit = np.where(seen, _seen_from_W(d, cand, n_eff, sd, rms), np.inf)
+    return tuple({**params, "detectable_W": float(w)}
                  for params, w in zip(alternatives.params, limit))
 
 
