@@ -65,9 +65,9 @@ class DiagnosisSettings:
     landed_min_s : a leading or trailing stationary period at least this long counts as
         landed [s]
     prior_scale : the scenario's a priori standard errors are widened by this factor for the
-        baseline refit, whose ridge is ``1 / sd^2`` on squares in W^2 (not in the noise's
-        units, as calibration's is: on a recording noisier than 1 W the prior is wider than
-        ``sd`` by the noise's sd in W); it steers only what the recording cannot separate [-]
+        baseline refit, whose ridge is ``1 / sd^2`` on squares in W^2, not in the noise's
+        units as calibration's is (the guide's "Baseline" gives the prior's resulting sd); it
+        steers only what the recording cannot separate [-]
     regen_rounds : Gauss-Newton rounds of a fit with ``regen`` inside the model [-]: the
         efficiency and the force coefficients are a product on braking samples, and the clip
         moves with both
