@@ -27,7 +27,8 @@ def _fit(rmse_W: float, coefficients: int = 1, scanned: int = 0, tau: float = 10
 
 def _scored(name: str, rmse_W: float, gain: float, accepted: bool, priced_out: bool = False,
             scanned: int = 0) -> Scored:
-    trial = Trial(name, gain, 5.0, -10.0, accepted, "" if accepted else "t", 5, 1.0, priced_out)
+    trial = Trial(name, gain, 5.0, -10.0, accepted, "" if accepted else "t", 5, 1.0, 4.0,
+                  priced_out)
     return Scored([SimpleNamespace(id=name)], _fit(rmse_W, scanned=scanned), trial)
 
 

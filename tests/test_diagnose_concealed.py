@@ -249,6 +249,8 @@ def test_the_oracle_tells_a_term_in_the_recording_from_one_that_is_not(results):
         assert told["detectable"] and told["t"] > MIN_T, (name, told)
         # found, so larger than the detection limit diagnosis stated for it
         assert told["effect_W"] > told["stated_limit_W"] > 0, (name, told)
+        # the limit's t bar: the plain one, and a scanned change time's with its price
+        assert told["need_t"] == MIN_T if name == "turning" else told["need_t"] > MIN_T, told
     case, result = results("null-ground")
     (absent,) = oracle(result, {"battery_resistance": {"battery_loss_per_W": 1e-3}})
     assert not absent["detectable"], absent
@@ -285,6 +287,46 @@ def test_the_stated_limit_is_the_one_for_the_true_shape():
     assert _true_alternative("payload", {"payload_kg": 5.0, "payload_from_s": 60.0}) == {
         "payload_from_s": 60.0}
     assert _true_alternative("turning", {"turn_J_per_rad": 30.0}) == {}
+
+
+def test_a_miss_probability_by_hand_and_broadcast():
+    """``miss_probability``: a term at its stated limit is missed 1 time in 20 (z = 1.645),
+    at twice it (bar 4) its expected t is 2 x 5.645 = 11.29 and its miss 1 - Phi(7.29) =
+    1.5e-13, and with no power it is missed unless the noise alone reaches the bar, 1 - Phi(-4);
+    arrays broadcast; a limit that is not positive is refused."""
+    import numpy as np
+
+    from orange_plan.bench.diagnose import miss_probability
+
+    assert miss_probability(2.0, 2.0, 4.0, 1.645) == pytest.approx(0.04998, abs=1e-5)
+    assert miss_probability(4.0, 2.0, 4.0, 1.645) == pytest.approx(1.55e-13, rel=0.02)
+    assert miss_probability(0.0, 2.0, 4.0, 1.645) == pytest.approx(0.999968, abs=1e-6)
+    grid = miss_probability(np.array([[1.0], [2.0]]), np.array([1.0, 2.0, 4.0]), 4.0, 1.645)
+    assert grid.shape == (2, 3) and grid[0, 0] == pytest.approx(0.04998, abs=1e-5)
+    with pytest.raises(ValueError, match="positive"):
+        miss_probability(1.0, 0.0, 4.0, 1.645)
+    with pytest.raises(ValueError, match="non-negative"):
+        miss_probability(-1.0, 1.0, 4.0, 1.645)
+
+
+def test_expected_misses_count_the_terms_with_a_stated_limit():
+    """``expected_misses``: a term missed at its limit counts 0.05 expected and is not above
+    it; a term found at twice its limit is above it and adds next to nothing; a term with no
+    stated limit is left out of both."""
+    from types import SimpleNamespace
+
+    from orange_plan.bench.diagnose import expected_misses
+
+    row = SimpleNamespace(ours_missed=["drift", "payload"])
+    told = [(row, {"term": "drift", "effect_W": 2.0, "stated_limit_W": 2.0, "need_t": 4.0}),
+            (row, {"term": "turning", "effect_W": 4.0, "stated_limit_W": 2.0, "need_t": 4.0}),
+            (row, {"term": "payload", "effect_W": 1.0, "stated_limit_W": float("nan"),
+                   "need_t": float("nan")})]
+    counted = expected_misses(told)
+    assert counted["terms_above_stated_limit"] == 1
+    assert counted["misses_above_stated_limit"] == 0
+    assert counted["misses_expected_above_stated_limit"] == pytest.approx(0.0, abs=1e-12)
+    assert counted["misses_expected"] == pytest.approx(0.04998, abs=1e-5)
 
 
 def test_covariance_scales_columns_and_gives_a_zero_column_no_variance():

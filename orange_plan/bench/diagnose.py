@@ -27,7 +27,9 @@ and an effect the data do not carry are told apart.
 Each oracle entry also sets the term's true size (its RMS power in that fit, ``effect_W``)
 against the detection limit diagnosis itself stated for it (``stated_limit_W``, no truth
 used): the summary counts the misses that were under it, i.e. ones the user was told a
-recording like this could hide.
+recording like this could hide, and how many misses the stated limits themselves predict
+(``miss_probability``), over every term and over those above their limit: a limit is the
+size seen with 95 % probability, so a term at its limit is missed 1 time in 20.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
+from scipy.stats import norm
 
 from orange_plan.identify.diagnose import (
     build_design,
@@ -47,6 +50,7 @@ from orange_plan.identify.diagnose import (
     judge,
     payload_step,
 )
+from orange_plan.identify.diagnosis.settings import DEFAULT_SETTINGS
 from orange_plan.physics.terms import DRIFT_TAU_S, spec_id
 
 TEST_SEEDS = (0, 1)
@@ -117,8 +121,9 @@ def compare(case) -> CaseRow:
 
 
 def with_stated_limits(told: list[dict], result, truth: dict) -> list[dict]:
-    """Each oracle entry with ``stated_limit_W``: the detection limit diagnosis itself stated
-    for that term, to set against the term's true size ``effect_W``: a miss under the stated
+    """Each oracle entry with ``stated_limit_W``, the detection limit diagnosis itself stated
+    for that term, and ``need_t``, the t bar that limit is stated at (``Trial.need_t``), to
+    set against the term's true size ``effect_W``: a miss under the stated
     limit is one the user was told could happen. It is the smallest over the term's
     candidates in the last round each was tried (``Trial.detectable_W``), and for a
     candidate that states its limit per alternative of its scan (a drift's shapes, a
@@ -128,12 +133,36 @@ def with_stated_limits(told: list[dict], result, truth: dict) -> list[dict]:
     last = {t.id: t for t in result.trials if "+" not in t.id}
     shapes = {concealed_id(term): _true_alternative(term, params)
               for term, params in truth.items()}
-    stated: dict[str, float] = {}
+    stated: dict[str, tuple[float, float]] = {}  # term -> (limit, its t bar)
     for cand_id, trial in last.items():
         sid = spec_id(cand_id)
         limit = _nearest_alternative(trial, shapes.get(sid, {}))
-        stated[sid] = min(limit, stated.get(sid, float("inf")))
-    return [{**o, "stated_limit_W": stated.get(o["term"], float("nan"))} for o in told]
+        if limit < stated.get(sid, (float("inf"), 0.0))[0]:
+            stated[sid] = (limit, trial.need_t)
+    nothing = (float("nan"), float("nan"))
+    return [{**o, "stated_limit_W": stated.get(o["term"], nothing)[0],
+             "need_t": stated.get(o["term"], nothing)[1]} for o in told]
+
+
+def miss_probability(effect_W, limit_W, need_t, z: float):
+    """The chance that a term of RMS power ``effect_W`` is missed, by the limit diagnosis
+    stated for it: a limit ``limit_W`` is the size whose expected t is its bar ``need_t``
+    plus ``z`` standard errors (``selection._limit_t``), so the term's expected t is
+    ``(need_t + z) effect_W / limit_W``, its t is that plus a unit normal, and it is missed
+    when that falls under the bar: ``1 - Phi((need_t + z) effect_W / limit_W - need_t)``
+    [-]. At the limit, ``1 - Phi(z)`` (0.05 at z = 1.645); a term of no power, 1 - Phi(-need_t).
+
+    Raises
+    ------
+    ValueError
+        A limit that is not positive, or a negative effect.
+    """
+    effect = np.asarray(effect_W, float)
+    limit = np.asarray(limit_W, float)
+    if np.any(limit <= 0) or np.any(effect < 0):
+        raise ValueError("a detection limit must be positive and an effect's size non-negative")
+    need = np.asarray(need_t, float)
+    return norm.sf((need + z) * effect / limit - need)
 
 
 def _true_alternative(term: str, params: dict) -> dict:
@@ -266,7 +295,8 @@ def sparse_regression(case) -> tuple[list[str], float]:
 
 def summarise(rows: list[CaseRow]) -> dict:
     """Totals per method: terms found, misses, false positives (and on the null cases),
-    median held-out RMSE improvement on the cases with a concealed effect, seconds."""
+    median held-out RMSE improvement on the cases with a concealed effect, seconds; and the
+    misses the stated limits predict against those observed (``expected_misses``)."""
     effect = [r for r in rows if r.concealed]
     nulls = [r for r in rows if not r.concealed]
     total = sum(len(r.concealed) for r in rows)
@@ -296,8 +326,30 @@ def summarise(rows: list[CaseRow]) -> dict:
             "detectable_found": sum(o["term"] not in r.ours_missed for r, o in detectable),
             "undetectable": [f"{r.case}: {o['term']} (t {o['t']:.1f}, held-out "
                              f"{o['gain_pct']:+.1f} %)" for r, o in told if not o["detectable"]],
+            **expected_misses(told),
             "cases": len(rows), "null_cases": len(nulls), "diagnosis": method("ours"),
             "sparse_regression": method("lasso"),
             "params_within_3sd": sum(p["z"] <= 3 for p in params), "params": len(params),
             "params_median_rel_error": float(np.nanmedian([p["rel_error"] for p in params]))
             if params else float("nan")}
+
+
+def expected_misses(told: list) -> dict:
+    """Misses the stated limits predict (``miss_probability``, summed) and those observed,
+    over the ``(row, oracle entry)`` pairs ``told`` whose limit was stated, and over those
+    above their limit: ``terms_above_stated_limit``, ``misses_above_stated_limit`` and
+    ``misses_expected_above_stated_limit``; ``misses_expected`` over every such term. When
+    the limits are right, the observed counts are Poisson about the expected ones."""
+    stated = [(r, o) for r, o in told
+              if np.isfinite(o["stated_limit_W"]) and o["stated_limit_W"] > 0
+              and np.isfinite(o["need_t"])]
+    p = miss_probability([o["effect_W"] for _, o in stated],
+                         [o["stated_limit_W"] for _, o in stated],
+                         [o["need_t"] for _, o in stated],
+                         DEFAULT_SETTINGS.detection_power_z) if stated else np.zeros(0)
+    above = np.array([o["effect_W"] > o["stated_limit_W"] for _, o in stated], bool)
+    missed = np.array([o["term"] in r.ours_missed for r, o in stated], bool)
+    return {"terms_above_stated_limit": int(above.sum()),
+            "misses_above_stated_limit": int((missed & above).sum()),
+            "misses_expected_above_stated_limit": float(p[above].sum()),
+            "misses_expected": float(p.sum())}

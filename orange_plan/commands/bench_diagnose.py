@@ -116,7 +116,12 @@ def _summary_table(summary: dict) -> Table:
                      f"of which diagnosis found {summary['detectable_found']}; "
                      f"hidden by the noise: {hidden}\n"
                      f"misses under the detection limit diagnosis stated for them: "
-                     f"{summary['misses_under_stated_limit']} of {summary['misses']}")
+                     f"{summary['misses_under_stated_limit']} of {summary['misses']}\n"
+                     f"misses the stated limits predict: {summary['misses_expected']:.1f} "
+                     f"(observed {summary['misses']}); of the "
+                     f"{summary['terms_above_stated_limit']} terms above their limit, "
+                     f"{summary['misses_expected_above_stated_limit']:.2f} "
+                     f"(observed {summary['misses_above_stated_limit']})")
     return table
 
 

@@ -32,7 +32,10 @@ class Trial:
     (``_needed_t``); it may stand in for a candidate that passes (``_round_choice``).
     ``detectable_W_by_alternative``: for a scanned candidate with one coefficient (a drift,
     a payload), its detection limit at each other choice of its scan, as dicts of the
-    alternative's parameters and ``detectable_W`` (``limits_by_alternative``); () otherwise."""
+    alternative's parameters and ``detectable_W`` (``limits_by_alternative``); () otherwise.
+    ``need_t``: the t it had to reach in this round (``_needed_t``; a pair: the larger of
+    its members'), the bar its detection limit is stated at (plus
+    ``settings.detection_power_z``)."""
 
     id: str
     gain: float
@@ -42,6 +45,7 @@ class Trial:
     reason: str
     folds: int
     detectable_W: float
+    need_t: float
     priced_out: bool = False
     detectable_W_by_alternative: tuple = ()
 
@@ -230,7 +234,8 @@ def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
     for cand in new:
         sig = _significance(cand, fit, current, n_eff, s)
         if sig.refusal:
-            return Trial(ident, float(gain), sig.t_max, 0.0, False, sig.refusal, 0, limit_W)
+            return Trial(ident, float(gain), sig.t_max, 0.0, False, sig.refusal, 0, limit_W,
+                         sig.need_t)
         checks.append(_MemberCheck(cand.id, fit.effect_rms_W(cand.id)
                                    / max(d.mean_power_W, 1e-12), sig.t_max, sig.need_t))
     small = next((c for c in checks if c.share < s.min_effect_share), None)
@@ -258,7 +263,7 @@ def judge(d: Design, new: list[Candidate], fit: Fit, current: Fit) -> Trial:
     priced_out = len(new) == 1 and len(failed) == 1 and weak is not None and weak.t >= s.min_t
     by_alternative = limits_by_alternative(d, new[0], fit, n_eff) if len(new) == 1 else ()
     return Trial(ident, float(gain), t_max, float(bic_change), not reason, reason, folds,
-                 limit_W, priced_out, by_alternative)
+                 limit_W, max(c.need_t for c in checks), priced_out, by_alternative)
 
 
 def _needed_t(cand: Candidate, n_eff: float, settings: DiagnosisSettings) -> float:
