@@ -214,3 +214,17 @@ def test_the_rule_is_read_and_the_normal_law_computed_in_one_module():
              for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
              if pattern.search(line)]
     assert not found, f"reserve rules or the normal law outside planning/reserve.py: {found}"
+
+
+def test_the_normal_upper_tail_by_hand_and_far_out():
+    """``normal_upper_tail``: 1 - Phi(1.645) = 0.04998 and 1 - Phi(0) = 0.5 by the tables;
+    at 8 it is 6.2e-16, where 1 - Phi(8) computed as a difference rounds to 0; arrays keep
+    their shape."""
+    import numpy as np
+
+    from orange_plan.planning.reserve import normal_upper_tail
+
+    assert normal_upper_tail(1.645) == pytest.approx(0.04998, abs=1e-5)
+    assert normal_upper_tail(0.0) == 0.5
+    assert normal_upper_tail(8.0) == pytest.approx(6.22e-16, rel=0.01)
+    assert normal_upper_tail(np.zeros((2, 3))).shape == (2, 3)

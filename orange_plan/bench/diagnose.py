@@ -38,7 +38,6 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
-from scipy.stats import norm
 
 from orange_plan.identify.diagnose import (
     build_design,
@@ -52,6 +51,7 @@ from orange_plan.identify.diagnose import (
 )
 from orange_plan.identify.diagnosis.settings import DEFAULT_SETTINGS
 from orange_plan.physics.terms import DRIFT_TAU_S, spec_id
+from orange_plan.planning.reserve import normal_upper_tail
 
 TEST_SEEDS = (0, 1)
 """Seeds the test suite uses (tests/test_diagnose_concealed.py); the benchmark's default
@@ -162,7 +162,7 @@ def miss_probability(effect_W, limit_W, need_t, z: float):
     if np.any(limit <= 0) or np.any(effect < 0):
         raise ValueError("a detection limit must be positive and an effect's size non-negative")
     need = np.asarray(need_t, float)
-    return norm.sf((need + z) * effect / limit - need)
+    return normal_upper_tail((need + z) * effect / limit - need)
 
 
 def _true_alternative(term: str, params: dict) -> dict:

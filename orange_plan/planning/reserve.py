@@ -56,6 +56,12 @@ def normal_quantiles(p) -> np.ndarray:
     return ndtri(np.asarray(p, float))
 
 
+def normal_upper_tail(x) -> np.ndarray:
+    """``1 - Phi(x)``: the standard normal law's probability above ``x`` (array-like),
+    accurate far out in the tail, where ``1 - ndtr(x)`` rounds to 0."""
+    return ndtr(-np.asarray(x, float))
+
+
 def closed_loop_return_spread(model) -> float:
     """The least relative spread [-] a closed loop takes for its way home:
     ``RETURN_SPREAD_FLOOR`` of ``model``'s a-priori run-to-run discrepancy. The session's
