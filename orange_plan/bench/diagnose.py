@@ -140,8 +140,8 @@ def with_stated_limits(told: list[dict], result, truth: dict) -> list[dict]:
         if limit < stated.get(sid, (float("inf"), 0.0))[0]:
             stated[sid] = (limit, trial.need_t)
     nothing = (float("nan"), float("nan"))
-    return [{**o, "stated_limit_W": stated.get(o["term"], nothing)[0],
-             "need_t": stated.get(o["term"], nothing)[1]} for o in told]
+    return [{**o, **dict(zip(("stated_limit_W", "need_t"), stated.get(o["term"], nothing)))}
+            for o in told]
 
 
 def miss_probability(effect_W, limit_W, need_t, z: float):
@@ -346,7 +346,7 @@ def expected_misses(told: list) -> dict:
     p = miss_probability([o["effect_W"] for _, o in stated],
                          [o["stated_limit_W"] for _, o in stated],
                          [o["need_t"] for _, o in stated],
-                         DEFAULT_SETTINGS.detection_power_z) if stated else np.zeros(0)
+                         DEFAULT_SETTINGS.detection_power_z)
     above = np.array([o["effect_W"] > o["stated_limit_W"] for _, o in stated], bool)
     missed = np.array([o["term"] in r.ours_missed for r, o in stated], bool)
     return {"terms_above_stated_limit": int(above.sum()),
