@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from orange_plan.errors import InputError
-from orange_plan.identify.calibrate import recording_samples
+from orange_plan.identify.calibrate import autoregressive_inflation, recording_samples
 from orange_plan.identify.diagnosis.candidates import TERM_CANDIDATES, candidates
 from orange_plan.identify.diagnosis.design import (
     Design,
@@ -18,7 +18,7 @@ from orange_plan.identify.diagnosis.design import (
     _baseline_model,
     _bounds,
 )
-from orange_plan.identify.diagnosis.fitting import _fit_rows, fit_design
+from orange_plan.identify.diagnosis.fitting import _fit_rows, _linear_fit_at
 from orange_plan.identify.diagnosis.settings import DEFAULT_SETTINGS, DiagnosisSettings
 
 
@@ -42,7 +42,17 @@ def build_design(recording, ctx, *, grade_window_m: float | None = None,
     if grade_window_m is not None or not recording.has("z_m"):
         return _design_at(recording, ctx, grade_window_m, lag_s, settings)
     designs = [_design_at(recording, ctx, w, lag_s, settings) for w in settings.grade_windows_m]
-    return min(designs, key=lambda d: fit_design(d, []).cv_rmse_W)
+    return min(designs, key=_unconstrained_cv_rmse_W)
+
+
+def _unconstrained_cv_rmse_W(d: Design) -> float:
+    """The baseline's held-out RMSE with the prior's weight at unit noise, i.e. next to
+    nothing against a recording's W^2 [W]: what a grade window is chosen by. The window is
+    the elevation's measurement, which the data alone should tell; under the prior at its
+    stated width, the window that best let the coefficients stay near the scenario's
+    won instead (0.5 -> 5 m on a generated case, and the smoothed-away ramps were then
+    blamed on a turning term)."""
+    return _linear_fit_at(d, [], 1.0).cv_rmse_W
 
 
 def _design_at(recording, ctx, grade_window_m, lag_s, settings: DiagnosisSettings) -> Design:
@@ -59,19 +69,19 @@ def _design_at(recording, ctx, grade_window_m, lag_s, settings: DiagnosisSetting
     sd0 = np.sqrt(np.diag(model.cov)) * settings.prior_scale
     weight = np.where(sd0 > 0, 1.0 / np.where(sd0 > 0, sd0, 1.0) ** 2, 0.0)
 
-    def refit(samples_now, column_delay=0.0) -> Design:
+    def refit(samples_now, column_delay=0.0, noise_var=1.0) -> Design:
         theta = np.clip(model.theta, lower, upper)
         design = Design(samples_now, model, np.zeros((n, len(model.names))), lower, upper,
                         model.theta.copy(), weight, fold, t,
                         _airborne(recording, settings.landed_min_s),
                         frozenset(recording.frame.columns), ctx.scenario, ctx.world,
-                        recording.frame, column_delay=column_delay, settings=settings)
+                        recording.frame, column_delay=column_delay, settings=settings,
+                        noise_var=noise_var)
         for _ in range(8):  # Gauss-Newton: the clip mask and the regen product settle
             design.base = model.with_theta(dict(zip(model.names, theta)))
             design.columns = design.aligned(design.base.power_jacobian(state))
             design.cache.clear()
-            new = _fit_rows(design, design.columns, lower, upper, np.ones(n, bool),
-                            len(model.names))
+            new = _fit_rows(design, design.columns, lower, upper, np.ones(n, bool))
             if np.allclose(new, theta, rtol=1e-6, atol=1e-9):
                 break
             theta = new
@@ -80,18 +90,32 @@ def _design_at(recording, ctx, grade_window_m, lag_s, settings: DiagnosisSetting
         design.cache.clear()
         return design
 
-    design = refit(samples)
+    def refit_at_its_noise(samples_now, column_delay=0.0) -> Design:
+        """The baseline refitted with the prior weighed at unit noise, then again at the
+        noise (variance times autocorrelation time) that fit leaves (``Design.noise_var``)."""
+        loose = refit(samples_now, column_delay)
+        return refit(samples_now, column_delay, _noise_var(loose))
+
+    design = refit_at_its_noise(samples)
     if lag_s is None:
         lag_s = power_lag_s(design, recording.t_s, lag_columns(design))
     if lag_s:
         dt = float(np.median(np.diff(recording.t_s)))
         whole = float(np.floor(lag_s / dt + 1e-9))
-        design = refit(replace(samples, power_W=_advance(samples.power_W, recording.t_s,
-                                                         whole * dt)),
-                       column_delay=lag_s / dt - whole)
+        design = refit_at_its_noise(
+            replace(samples, power_W=_advance(samples.power_W, recording.t_s, whole * dt)),
+            column_delay=lag_s / dt - whole)
     design.lag_s = float(lag_s)
     design.grade_window_m = grade_window_m
     return design
+
+
+def _noise_var(d: Design) -> float:
+    """The residual variance of the baseline's fit on every sample times the residual's
+    autocorrelation time (``calibrate.autoregressive_inflation``) [W^2]."""
+    resid = d.target - d.columns @ _fit_rows(d, d.columns, d.lower, d.upper, np.ones(d.n, bool))
+    tau = autoregressive_inflation(resid, d.samples, d.settings.inflation_block_s)
+    return max(float(np.mean(resid**2)) * tau, 1e-12)
 
 
 def power_lag_s(d: Design, t_s: np.ndarray, columns: np.ndarray) -> float:

@@ -32,7 +32,13 @@ class Design:
     base : the baseline model, refitted to the recording
     columns : the baseline's Jacobian columns at its coefficients (n, p) [W per unit]
     lower, upper : physical bounds of the baseline coefficients
-    prior_mean, prior_weight : weak prior on the baseline coefficients (scenario values)
+    prior_mean, prior_weight : the prior on the baseline coefficients: the scenario's values,
+        each weighed by one over its stated variance (``settings.prior_scale`` times the a-priori
+        standard error, squared) [1/unit^2]
+    noise_var : the recording's noise variance times its autocorrelation time, from the
+        baseline's fit [W^2]: a fit's ridge is ``prior_weight * noise_var`` (``ridge``), so that
+        the prior weighs against squared residuals in W^2 as one over its variance weighs
+        against the residuals in units of the noise
     fold : fold index of each sample (interleaved time blocks)
     t_s : time since the start [s]
     airborne : not in the recording's leading or trailing stationary period (landed)
@@ -64,6 +70,14 @@ class Design:
     grade_window_m: float | None = None
     column_delay: float = 0.0
     settings: DiagnosisSettings = DEFAULT_SETTINGS
+    noise_var: float = 1.0
+
+    def ridge(self, k: int, noise_var: float | None = None) -> np.ndarray:
+        """The prior's weights on ``k`` columns, the baseline's first (the others, a
+        candidate's, have no prior), against squared residuals in W^2: ``prior_weight`` at
+        ``noise_var`` (None: the design's, the baseline's noise) [W^2/unit^2]."""
+        scale = self.noise_var if noise_var is None else noise_var
+        return np.r_[self.prior_weight * scale, np.zeros(k - self.prior_weight.size)]
 
     def aligned(self, values) -> np.ndarray:
         """Model-side values (columns, powers) delayed by ``column_delay`` of a sample, by

@@ -5,7 +5,7 @@ inside the model (``polish``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -66,6 +66,8 @@ class Fit:
     n_scanned : the candidates' non-linear parameters chosen by a scan (``Effect.scanned``)
     alternatives : candidate id -> its effect's ``Alternatives`` (a drift's other shapes, a
         payload's other change times), for those that have them
+    ridge : the prior's weight on each coefficient in this fit (``Design.ridge``)
+        [W^2/unit^2]
     """
 
     theta: np.ndarray
@@ -79,8 +81,9 @@ class Fit:
     names: tuple
     fold_ss: np.ndarray
     x: np.ndarray
-    n_scanned: int = 0
-    alternatives: dict = field(default_factory=dict)
+    n_scanned: int
+    alternatives: dict
+    ridge: np.ndarray
 
     def bic(self, tau: float) -> float:
         """Bayesian information criterion with ``n / tau`` effective samples, every
@@ -175,21 +178,33 @@ def _goes_inside(cand: Candidate) -> bool:
 
 
 def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
-    """``fit_design`` with every chosen effect as linear columns beside the baseline's."""
+    """``fit_design`` with every chosen effect as linear columns beside the baseline's, the
+    prior weighed at this fit's own noise: fitted first at the baseline's (``d.noise_var``),
+    then again at the noise variance times autocorrelation time that fit leaves. The prior
+    is a stated standard error on each coefficient; against squared residuals in W^2 its
+    weight is the noise's variance over the prior's, so a fit that explains more (a found
+    effect) leans less on it, as its residuals say it may."""
+    first = _linear_fit_at(d, chosen, d.noise_var)
+    return _linear_fit_at(d, chosen, max(first.rmse_W**2 * first.tau, 1e-12))
+
+
+def _linear_fit_at(d: Design, chosen: list[Candidate], noise_var: float) -> Fit:
+    """``_linear_fit`` with the prior weighed at ``noise_var`` [W^2]."""
     n, p = d.columns.shape
     held = np.zeros(n)
     for f in range(d.settings.n_folds):
         train = d.fold != f
         x, lo, hi, _names, _extra = _stack(d, chosen, train)
-        theta = _fit_rows(d, x, lo, hi, train, p)
+        theta = _fit_rows(d, x, lo, hi, train, noise_var)
         held[~train] = x[~train] @ theta + d.offset[~train]
     x, lo, hi, names, extra = _stack(d, chosen, np.ones(n, bool))
-    theta = _fit_rows(d, x, lo, hi, np.ones(n, bool), p)
+    theta = _fit_rows(d, x, lo, hi, np.ones(n, bool), noise_var)
     pred = x @ theta + d.offset
     resid = d.y - pred
     tau = autoregressive_inflation(resid, d.samples, d.settings.inflation_block_s)
     s2 = float(np.mean(resid**2))
-    gram = x.T @ x + np.diag(np.r_[d.prior_weight, np.zeros(x.shape[1] - p)])
+    ridge = d.ridge(x.shape[1], noise_var)
+    gram = x.T @ x + np.diag(ridge)
     cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
     effects = _all_row_effects(d, chosen)
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.concatenate(
@@ -199,7 +214,8 @@ def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
     return Fit(theta, sd, pred, held, float(np.sqrt(np.mean((d.y - held) ** 2))),
                float(np.sqrt(s2)), float(tau), extra, tuple(names), fold_ss, x,
                sum(e.scanned for e in effects),
-               {c.id: e.alternatives for c, e in zip(chosen, effects) if e.alternatives})
+               {c.id: e.alternatives for c, e in zip(chosen, effects) if e.alternatives},
+               ridge)
 
 
 def _stack(d: Design, chosen, rows):
@@ -239,16 +255,18 @@ def _residual_without(d: Design, effects, rows) -> np.ndarray:
     x = np.hstack([d.columns, *(e.columns for e in effects)])
     lo = np.concatenate([d.lower, *(e.lower for e in effects)])
     hi = np.concatenate([d.upper, *(e.upper for e in effects)])
-    return d.target - x @ _fit_rows(d, x, lo, hi, rows, d.columns.shape[1])
+    return d.target - x @ _fit_rows(d, x, lo, hi, rows)
 
 
-def _fit_rows(d: Design, x, lo, hi, rows, p: int) -> np.ndarray:
+def _fit_rows(d: Design, x, lo, hi, rows, noise_var: float | None = None) -> np.ndarray:
+    """The bounded fit of ``x`` on ``rows``, the baseline's coefficients (its first) under the prior
+    weighed at ``noise_var`` (None: the baseline's noise, ``Design.ridge``)."""
     xr = x[rows]
     gram = xr.T @ xr
     rhs = xr.T @ d.target[rows]
-    w = np.r_[d.prior_weight, np.zeros(x.shape[1] - p)]
+    w = d.ridge(x.shape[1], noise_var)
     gram[np.diag_indices_from(gram)] += w
-    rhs = rhs + w * np.r_[d.prior_mean, np.zeros(x.shape[1] - p)]
+    rhs = rhs + w * np.r_[d.prior_mean, np.zeros(x.shape[1] - d.prior_mean.size)]
     return _solve(gram, rhs, lo, hi)
 
 

@@ -117,7 +117,7 @@ def _hvac_joint_sd(d: Design, resid, rows, columns, setpoints, noise: float):
     p = d.columns.shape[1]
     lower, upper = _bounds(("hvac_heat_W_per_K", "hvac_cool_W_per_K"))
     theta = _fit_rows(d, np.hstack([d.columns, columns]), np.r_[d.lower, lower],
-                      np.r_[d.upper, upper], rows, p)  # the fit the candidate is judged by
+                      np.r_[d.upper, upper], rows)  # the fit the candidate is judged by
     a, b = theta[-2:]
     x = np.hstack([d.columns[rows], columns[rows]])
     temp = d.frame["ambient_C"].to_numpy(float)[rows]

@@ -344,7 +344,7 @@ def limits_by_alternative(d: Design, cand: Candidate, fit: Fit, n_eff: float) ->
     j = own[0]
     columns = alternatives.columns()
     others = np.delete(fit.x, j, axis=1)
-    prior = np.r_[d.prior_weight, np.zeros(others.shape[1] - d.prior_weight.size)]
+    prior = np.delete(fit.ridge, j)
     spread = _unexplained_spread(others, prior, np.column_stack([fit.x[:, j], columns]))
     if not spread[0] > 0:
         return ()
