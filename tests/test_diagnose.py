@@ -15,7 +15,7 @@ from scipy.optimize import lsq_linear
 from scipy.signal import lfilter
 
 from orange_plan.context import load_context
-from orange_plan.identify.diagnose import diagnose
+from orange_plan.identify.diagnose import build_design, diagnose, fit_design
 from orange_plan.identify.diagnosis.fitting import _solve
 from orange_plan.identify.locate import quarters
 from orange_plan.physics.model_builder import model_with_terms
@@ -123,6 +123,42 @@ def test_a_column_that_carries_nothing_adds_no_term(ctx):
     assert result.findings == []
     tried = {t.id for t in result.trials}
     assert {"hvac_ambient", "battery_temperature"} <= tried  # they were considered
+
+
+# --- the baseline's prior ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("disturbance_sd_W", [0.4, 4.0])
+def test_a_coefficient_the_recording_cannot_see_keeps_its_stated_prior(ctx, disturbance_sd_W):
+    """On a flat field the grade's column is zero: its coefficient is the prior's alone, with
+    the stated standard error (``prior_scale`` times the a-priori one), however noisy the
+    power. A prior weighed against squared residuals in W^2 as if the noise were 1 W came
+    out sqrt(s^2 tau) times wider: 2.7 x at 0.4 W of disturbance, 30 x at 4 W."""
+    d = build_design(recording_from_frame(drive(ctx, seed=7,
+                                                disturbance_sd_W=disturbance_sd_W)), ctx)
+    fit = fit_design(d, [])
+    grade = d.base.names.index("grade_kg")
+    assert not np.any(d.columns[:, grade])
+    stated = d.settings.prior_scale * np.sqrt(ctx.model.cov[grade, grade])
+    assert fit.sd[grade] == pytest.approx(stated, rel=1e-6)
+    assert fit.theta[grade] == pytest.approx(ctx.model.coefficient("grade_kg"), rel=1e-6)
+
+
+def test_the_prior_weight_is_the_noise_over_the_prior_variance(ctx):
+    """A fit's ridge is one over the prior's variance times the noise the fit leaves (its
+    residual variance times autocorrelation time): 7.3 W^2 / sd0^2 at 0.4 W of disturbance,
+    900 W^2 / sd0^2 at 4 W, so the noisier recording leans on the same prior 120 x harder."""
+    quiet, noisy = (build_design(recording_from_frame(drive(ctx, seed=7, disturbance_sd_W=s)),
+                                 ctx) for s in (0.4, 4.0))
+    ratios = []
+    for d in (quiet, noisy):
+        fit = fit_design(d, [])
+        p = d.prior_weight.size
+        noise = fit.rmse_W**2 * fit.tau
+        np.testing.assert_allclose(fit.ridge[:p], d.prior_weight * noise, rtol=0.02)
+        assert d.noise_var == pytest.approx(noise, rel=0.02)
+        ratios.append(noise)
+    assert 30 < ratios[1] / ratios[0] < 300
 
 
 # --- locating ----------------------------------------------------------------------------------
