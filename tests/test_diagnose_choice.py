@@ -22,7 +22,8 @@ def _fit(rmse_W: float, coefficients: int = 1, scanned: int = 0, tau: float = 10
     return Fit(theta=np.zeros(coefficients), sd=np.ones(coefficients), predicted_W=zeros,
                held_out_W=zeros, cv_rmse_W=rmse_W, rmse_W=rmse_W, tau=tau, extra={},
                names=tuple(f"c{i}" for i in range(coefficients)),
-               fold_ss=np.zeros(5), x=np.zeros((N, coefficients)), n_scanned=scanned)
+               fold_ss=np.zeros(5), x=np.zeros((N, coefficients)), n_scanned=scanned,
+               alternatives={}, ridge=np.zeros(coefficients))
 
 
 def _scored(name: str, rmse_W: float, gain: float, accepted: bool, priced_out: bool = False,
