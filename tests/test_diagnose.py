@@ -17,6 +17,7 @@ from scipy.signal import lfilter
 from orange_plan.context import load_context
 from orange_plan.identify.diagnose import build_design, diagnose, fit_design
 from orange_plan.identify.diagnosis.fitting import _solve
+from orange_plan.identify.diagnosis.settings import DEFAULT_SETTINGS
 from orange_plan.identify.locate import quarters
 from orange_plan.physics.model_builder import model_with_terms
 from orange_plan.sim.route import Route
@@ -155,10 +156,46 @@ def test_the_prior_weight_is_the_noise_over_the_prior_variance(ctx):
         fit = fit_design(d, [])
         p = d.prior_weight.size
         noise = fit.rmse_W**2 * fit.tau
-        np.testing.assert_allclose(fit.ridge[:p], d.prior_weight * noise, rtol=0.02)
+        near_prior = 1.0 / (1.0 + (fit.theta[:p] - d.prior_mean) ** 2 * d.prior_weight
+                            / (d.settings.prior_dof + 1.0))
+        np.testing.assert_allclose(fit.ridge[:p], d.prior_weight * noise * near_prior,
+                                   rtol=0.02)
         assert d.noise_var == pytest.approx(noise, rel=0.02)
         ratios.append(noise)
     assert 30 < ratios[1] / ratios[0] < 300
+
+
+def test_the_prior_weight_yields_as_a_student_t_by_hand(ctx):
+    """``Design.ridge`` at coefficients: the normal prior's weight at the prior mean, and
+    ``1 / (1 + z^2 / (dof + 1))`` of it ``z`` prior sd away: 1/3 at 2 sd with one degree of
+    freedom, 1/51 at 10 sd."""
+    d = build_design(recording_from_frame(drive(ctx, seed=7)), ctx)
+    sd0 = 1.0 / np.sqrt(d.prior_weight)
+    normal = d.ridge(d.prior_weight.size + 1, 3.0)
+    assert normal[-1] == 0.0  # a candidate's column has no prior
+    np.testing.assert_allclose(d.ridge(normal.size, 3.0, d.prior_mean), normal)
+    for z, share in ((2.0, 1 / 3), (10.0, 1 / 51)):
+        away = d.ridge(normal.size, 3.0, d.prior_mean + z * sd0)
+        np.testing.assert_allclose(away[:-1], share * normal[:-1])
+    with pytest.raises(ValueError):
+        d.ridge(normal.size, 3.0, d.prior_mean[:1])
+
+
+def test_a_prior_the_recording_contradicts_by_many_sd_yields(ctx):
+    """The ancillary draw 10 prior sd above the scenario's, in 20 W of disturbance: the fit is
+    the recording's (within one posterior sd), where a normal prior of the same sd pulled it
+    more than halfway back (4 sd of 10)."""
+    i = ctx.model.names.index("ancillary_W")
+    sd0 = DEFAULT_SETTINGS.prior_scale * np.sqrt(ctx.model.cov[i, i])
+    truth = ctx.model.with_theta({"ancillary_W": ctx.model.coefficient("ancillary_W") + 10 * sd0})
+    rec = recording_from_frame(drive(ctx, truth, seed=8, disturbance_sd_W=20.0))
+    fits = {dof: fit_design(build_design(rec, ctx, settings=replace(DEFAULT_SETTINGS,
+                                                                    prior_dof=dof)), [])
+            for dof in (DEFAULT_SETTINGS.prior_dof, 1e12)}
+    t_fit, normal_fit = fits[DEFAULT_SETTINGS.prior_dof], fits[1e12]
+    true_W = truth.coefficient("ancillary_W")
+    assert abs(t_fit.theta[i] - true_W) < t_fit.sd[i]
+    assert true_W - normal_fit.theta[i] > 3 * normal_fit.sd[i]
 
 
 # --- locating ----------------------------------------------------------------------------------

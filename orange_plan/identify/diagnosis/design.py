@@ -72,12 +72,28 @@ class Design:
     settings: DiagnosisSettings = DEFAULT_SETTINGS
     noise_var: float = 1.0
 
-    def ridge(self, k: int, noise_var: float | None = None) -> np.ndarray:
+    def ridge(self, k: int, noise_var: float | None = None, theta=None) -> np.ndarray:
         """The prior's weights on ``k`` columns, the baseline's first (the others, a
         candidate's, have no prior), against squared residuals in W^2: ``prior_weight`` at
-        ``noise_var`` (None: the design's, the baseline's noise) [W^2/unit^2]."""
+        ``noise_var`` (None: the design's, the baseline's noise) [W^2/unit^2].
+
+        With ``theta`` (the coefficients of a fit), each weight is a Student-t prior's at them
+        (``settings.prior_dof`` degrees of freedom, scaled to be as sharp at the prior mean as
+        the normal prior): ``1 / (1 + z^2 / (dof + 1))`` times the normal prior's, ``z`` the
+        coefficient's distance from the prior mean in prior sd. A fit solved at these weights
+        until they settle is the t prior's most probable value (iteratively reweighted least
+        squares): near the scenario's value it steers as the normal prior does, where the
+        recording is silent; where the recording contradicts it by many sd, it yields.
+        """
         scale = self.noise_var if noise_var is None else noise_var
-        return np.r_[self.prior_weight * scale, np.zeros(k - self.prior_weight.size)]
+        weight = self.prior_weight * scale
+        if theta is not None:
+            theta = np.asarray(theta, float)
+            if theta.size < weight.size:
+                raise ValueError(f"{theta.size} coefficients for a prior on {weight.size}")
+            z2 = (theta[:weight.size] - self.prior_mean) ** 2 * self.prior_weight
+            weight = weight / (1.0 + z2 / (self.settings.prior_dof + 1.0))
+        return np.r_[weight, np.zeros(k - weight.size)]
 
     def aligned(self, values) -> np.ndarray:
         """Model-side values (columns, powers) delayed by ``column_delay`` of a sample, by

@@ -203,7 +203,7 @@ def _linear_fit_at(d: Design, chosen: list[Candidate], noise_var: float) -> Fit:
     resid = d.y - pred
     tau = autoregressive_inflation(resid, d.samples, d.settings.inflation_block_s)
     s2 = float(np.mean(resid**2))
-    ridge = d.ridge(x.shape[1], noise_var)
+    ridge = d.ridge(x.shape[1], noise_var, theta)
     gram = x.T @ x + np.diag(ridge)
     cov = np.linalg.pinv(gram / (s2 * tau) if s2 > 0 else gram)
     effects = _all_row_effects(d, chosen)
@@ -259,15 +259,40 @@ def _residual_without(d: Design, effects, rows) -> np.ndarray:
 
 
 def _fit_rows(d: Design, x, lo, hi, rows, noise_var: float | None = None) -> np.ndarray:
-    """The bounded fit of ``x`` on ``rows``, the baseline's coefficients (its first) under the prior
-    weighed at ``noise_var`` (None: the baseline's noise, ``Design.ridge``)."""
+    """The bounded fit of ``x`` on ``rows``, the baseline's coefficients (its first) under the
+    Student-t prior weighed at ``noise_var`` (None: the baseline's noise, ``Design.ridge``).
+
+    The t prior's posterior can have two modes where the recording and the prior disagree:
+    one near each. Each is found by reweighting (``Design.ridge`` at the solution, until the
+    coefficients settle, ``settings.prior_rounds`` at most), one started from the normal
+    prior's fit, one from the recording's alone (the prior at a unit noise, next to nothing
+    against W^2), and the more probable kept."""
     xr = x[rows]
     gram = xr.T @ xr
     rhs = xr.T @ d.target[rows]
-    w = d.ridge(x.shape[1], noise_var)
-    gram[np.diag_indices_from(gram)] += w
-    rhs = rhs + w * np.r_[d.prior_mean, np.zeros(x.shape[1] - d.prior_mean.size)]
-    return _solve(gram, rhs, lo, hi)
+    k = x.shape[1]
+    mean = np.r_[d.prior_mean, np.zeros(k - d.prior_mean.size)]
+    scale = d.noise_var if noise_var is None else noise_var
+
+    def solve_at(w):
+        return _solve(gram + np.diag(w), rhs + w * mean, lo, hi)
+
+    def settle(theta):
+        for _ in range(d.settings.prior_rounds):
+            new = solve_at(d.ridge(k, scale, theta))
+            if np.allclose(new, theta, rtol=1e-6, atol=1e-9):
+                return new
+            theta = new
+        return theta
+
+    def cost(theta):  # minus the log posterior, in units of the noise
+        resid_ss = theta @ gram @ theta - 2 * rhs @ theta
+        shape = d.settings.prior_dof + 1.0
+        z2 = (theta[:d.prior_mean.size] - d.prior_mean) ** 2 * d.prior_weight
+        return resid_ss / scale + shape * np.sum(np.log1p(z2 / shape))
+
+    modes = [settle(solve_at(d.ridge(k, scale))), settle(solve_at(d.ridge(k, 1.0)))]
+    return min(modes, key=cost)
 
 
 def _covariance(jac: np.ndarray) -> np.ndarray:

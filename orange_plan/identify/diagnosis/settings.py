@@ -109,6 +109,8 @@ class DiagnosisSettings:
     n_folds: int = 5
     landed_min_s: float = 10.0
     prior_scale: float = 10.0
+    prior_dof: float = 1.0
+    prior_rounds: int = 30
     regen_rounds: int = 4
     drift_taus_s: tuple[float, ...] = (300.0, 600.0, 1200.0, 2400.0, 4800.0)
     drift_step_times: int = 37
