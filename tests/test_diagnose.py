@@ -16,7 +16,7 @@ from scipy.signal import lfilter
 
 from orange_plan.context import load_context
 from orange_plan.identify.diagnose import build_design, diagnose, fit_design
-from orange_plan.identify.diagnosis.fitting import _solve
+from orange_plan.identify.diagnosis.fitting import _at_violated_bounds, _solve
 from orange_plan.identify.diagnosis.settings import DEFAULT_SETTINGS
 from orange_plan.identify.locate import quarters
 from orange_plan.physics.model_builder import model_with_terms
@@ -243,6 +243,20 @@ def test_bounded_solve_from_normal_equations_matches_direct_least_squares(seed, 
     assert np.all(ours >= lower - 1e-9) and np.all(ours <= upper + 1e-9)
     cost = lambda th: float(np.sum((x @ th - y) ** 2))  # noqa: E731
     assert cost(ours) <= cost(ref) * (1 + 1e-6) + 1e-9
+
+
+def test_a_bound_the_free_optimum_crosses_is_tried_first_by_hand():
+    """``_at_violated_bounds``: on the identity with ``z = (-1, 2)`` and both >= 0 the first
+    coefficient is held at 0, the second is 2, and the gradient (1, 0) pushes the first
+    outwards: the optimum. Correlated columns with ``z = (-1, -0.5)``: held at 0, the first
+    pulls the second to -0.5, out of its bound, so the guess is refused and the bounded solve
+    finds (0, 0)."""
+    lo, hi = np.zeros(2), np.full(2, np.inf)
+    np.testing.assert_allclose(_at_violated_bounds(np.eye(2), np.array([-1.0, 2.0]),
+                                                   np.array([-1.0, 2.0]), lo, hi), [0.0, 2.0])
+    g, z = np.array([[1.0, 0.9], [0.9, 1.0]]), np.array([-1.0, -0.5])
+    assert _at_violated_bounds(g, z, np.linalg.solve(g, z), lo, hi) is None
+    np.testing.assert_allclose(_solve(g, z, lo, hi), [0.0, 0.0], atol=1e-12)
 
 
 @settings(max_examples=4, deadline=None, derandomize=True)

@@ -26,25 +26,61 @@ from orange_plan.physics.terms import TERMS
 def _solve(gram: np.ndarray, rhs: np.ndarray, lower, upper) -> np.ndarray:
     """Bounded least squares from normal equations: ``min x'Gx - 2 b'x`` in ``[lower, upper]``.
 
-    Written as ``|R x - z|^2`` with ``R'R = G`` (Cholesky, with a tiny ridge for rank
-    deficiency), so each fold's solve is k x k however long the recording. A coefficient
-    whose column is all zero on these rows (a surface never driven on) is left at 0 within
-    its bounds: scaled by its vanishing norm, rounding error became 1e+280.
+    Solved with the columns scaled to unit norm and a tiny ridge for rank deficiency, so each
+    fold's solve is k x k however long the recording: directly when no bound is active (the
+    unconstrained optimum is then the bounded one), else written as ``|R x - z|^2`` with
+    ``R'R = G`` (Cholesky) for bounded-variable least squares. A coefficient whose column is
+    all zero on these rows (a surface never driven on) is left at 0 within its bounds: scaled
+    by its vanishing norm, rounding error became 1e+280.
     """
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    diag = np.diag(gram)
-    live = diag > 1e-24 * max(float(np.max(diag, initial=0.0)), 1e-300)
+    diag = gram.diagonal()
+    live = diag > 1e-24 * max(float(diag.max(initial=0.0)), 1e-300)
     x = np.clip(np.zeros(rhs.size), lower, upper)
     if not live.any():
         return x
-    gram, rhs = gram[np.ix_(live, live)], rhs[live]
-    scale = np.sqrt(np.diag(gram))
-    g = gram / np.outer(scale, scale) + 1e-10 * np.eye(rhs.size)
+    every = live.all()
+    if not every:
+        gram, rhs = gram[np.ix_(live, live)], rhs[live]
+    scale = np.sqrt(gram.diagonal())
+    g = gram / np.outer(scale, scale)
+    g.flat[::g.shape[0] + 1] += 1e-10
+    zs = rhs / scale
+    lo, hi = (lower, upper) if every else (lower[live], upper[live])
+    lo, hi = lo * scale, hi * scale
+    free = np.linalg.solve(g, zs)
+    if (free >= lo).all() and (free <= hi).all():
+        x[live] = free / scale
+        return x
+    guess = _at_violated_bounds(g, zs, free, lo, hi)
+    if guess is not None:
+        x[live] = guess / scale
+        return x
     r = np.linalg.cholesky(g).T
-    z = np.linalg.solve(r.T, rhs / scale)
-    res = lsq_linear(r, z, bounds=(lower[live] * scale, upper[live] * scale), method="bvls")
-    x[live] = res.x / scale
+    x[live] = lsq_linear(r, np.linalg.solve(r.T, zs), bounds=(lo, hi), method="bvls").x / scale
     return x
+
+
+def _at_violated_bounds(g, z, free, lo, hi):
+    """The bounded optimum of ``x'gx - 2 z'x`` if it holds the coefficients whose
+    unconstrained optimum ``free`` crosses a bound at that bound, else None: the others solved
+    with those fixed, accepted where the optimality conditions hold (the others within their
+    bounds, and the gradient pushing each fixed one outwards). A convex problem's optimum is
+    the point where they hold, and one coefficient at 0 is the usual case: bounded-variable
+    least squares, ten times dearer, is left for the rest."""
+    at_lo, at_hi = free < lo, free > hi
+    fixed = at_lo | at_hi
+    x = np.where(at_lo, lo, np.where(at_hi, hi, 0.0))
+    rest = ~fixed
+    if rest.any():
+        x[rest] = np.linalg.solve(g[np.ix_(rest, rest)], z[rest] - g[np.ix_(rest, fixed)] @ x[fixed])
+        if not ((x[rest] >= lo[rest]).all() and (x[rest] <= hi[rest]).all()):
+            return None
+    grad = g @ x - z
+    tol = 1e-9 * (1.0 + float(np.abs(z).max()))
+    if (grad[at_lo] >= -tol).all() and (grad[at_hi] <= tol).all():
+        return x
+    return None
 
 
 @dataclass(frozen=True)
@@ -280,7 +316,7 @@ def _fit_rows(d: Design, x, lo, hi, rows, noise_var: float | None = None) -> np.
     def settle(theta):
         for _ in range(d.settings.prior_rounds):
             new = solve_at(d.ridge(k, scale, theta))
-            if np.allclose(new, theta, rtol=1e-6, atol=1e-9):
+            if (np.abs(new - theta) <= 1e-9 + 1e-6 * np.abs(theta)).all():  # np.allclose's test
                 return new
             theta = new
         return theta
