@@ -190,7 +190,7 @@ def test_bmw_trip_regen_named_with_an_efficiency_and_a_gain_over_inertia():
 def test_a_trips_efficiency_interval_says_whether_it_pins_the_efficiency():
     """The profile likelihood of the efficiency (every other coefficient refitted inside the
     model at each value): TripA01 pins it well below 1 (0.78 fitted); TripA16, whose heater
-    runs unmodelled, cannot tell its 0.99 from plausible efficiencies, and its interval says
+    runs unmodelled, cannot tell its 0.97 from plausible efficiencies, and its interval says
     so by reaching both 1 and under 0.8."""
     from orange_plan.bench.diagnose_real import bmw_regen
 

@@ -65,9 +65,14 @@ class DiagnosisSettings:
     landed_min_s : a leading or trailing stationary period at least this long counts as
         landed [s]
     prior_scale : the scenario's a priori standard errors are widened by this factor for the
-        baseline refit, whose ridge is ``1 / sd^2`` on squares in W^2, not in the noise's
-        units as calibration's is (the guide's "Baseline" gives the prior's resulting sd); it
-        steers only what the recording cannot separate [-]
+        baseline refit; the prior weighs against residuals in units of the noise, as
+        calibration's does (``Design.ridge``) [-]
+    prior_dof : degrees of freedom of the baseline's Student-t prior, as sharp at the
+        scenario's value as a normal one of the widened sd: it steers what the recording
+        cannot separate and yields where the recording contradicts it by many sd (a normal
+        prior split such a difference: a Husky run on snow whose ancillary draw is 11 sd
+        above the scenario's was fitted with a quarter of its energy missing) [-]
+    prior_rounds : reweighting rounds at most to the t prior's most probable value [-]
     regen_rounds : Gauss-Newton rounds of a fit with ``regen`` inside the model [-]: the
         efficiency and the force coefficients are a product on braking samples, and the clip
         moves with both
