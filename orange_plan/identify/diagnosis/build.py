@@ -18,7 +18,7 @@ from orange_plan.identify.diagnosis.design import (
     _baseline_model,
     _bounds,
 )
-from orange_plan.identify.diagnosis.fitting import _fit_rows, _linear_fit_at
+from orange_plan.identify.diagnosis.fitting import _fit_rows, _linear_fit_at, noise_var_W2
 from orange_plan.identify.diagnosis.settings import DEFAULT_SETTINGS, DiagnosisSettings
 
 
@@ -111,11 +111,12 @@ def _design_at(recording, ctx, grade_window_m, lag_s, settings: DiagnosisSetting
 
 
 def _noise_var(d: Design) -> float:
-    """The residual variance of the baseline's fit on every sample times the residual's
-    autocorrelation time (``calibrate.autoregressive_inflation``) [W^2]."""
-    resid = d.target - d.columns @ _fit_rows(d, d.columns, d.lower, d.upper, np.ones(d.n, bool))
+    """The noise the baseline's refit leaves: its residual at the refitted coefficients, whose
+    mean square times autocorrelation time (``calibrate.autoregressive_inflation``) is
+    ``fitting.noise_var_W2`` [W^2]."""
+    resid = d.target - d.columns @ d.base.theta
     tau = autoregressive_inflation(resid, d.samples, d.settings.inflation_block_s)
-    return max(float(np.mean(resid**2)) * tau, 1e-12)
+    return noise_var_W2(float(np.mean(resid**2)), tau)
 
 
 def power_lag_s(d: Design, t_s: np.ndarray, columns: np.ndarray) -> float:

@@ -88,12 +88,16 @@ class Design:
         scale = self.noise_var if noise_var is None else noise_var
         weight = self.prior_weight * scale
         if theta is not None:
-            theta = np.asarray(theta, float)
-            if theta.size < weight.size:
-                raise ValueError(f"{theta.size} coefficients for a prior on {weight.size}")
-            z2 = (theta[:weight.size] - self.prior_mean) ** 2 * self.prior_weight
-            weight = weight / (1.0 + z2 / (self.settings.prior_dof + 1.0))
+            weight = weight / (1.0 + self.prior_z2(theta) / (self.settings.prior_dof + 1.0))
         return np.r_[weight, np.zeros(k - weight.size)]
+
+    def prior_z2(self, theta) -> np.ndarray:
+        """Each baseline coefficient's squared distance from the prior mean in prior sd
+        (``theta``'s first coefficients; a candidate's after them have no prior) [-]."""
+        theta = np.asarray(theta, float)
+        if theta.size < self.prior_weight.size:
+            raise ValueError(f"{theta.size} coefficients for a prior on {self.prior_weight.size}")
+        return (theta[:self.prior_weight.size] - self.prior_mean) ** 2 * self.prior_weight
 
     def aligned(self, values) -> np.ndarray:
         """Model-side values (columns, powers) delayed by ``column_delay`` of a sample, by

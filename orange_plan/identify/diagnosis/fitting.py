@@ -48,11 +48,7 @@ def _solve(gram: np.ndarray, rhs: np.ndarray, lower, upper) -> np.ndarray:
     zs = rhs / scale
     lo, hi = (lower, upper) if every else (lower[live], upper[live])
     lo, hi = lo * scale, hi * scale
-    free = np.linalg.solve(g, zs)
-    if (free >= lo).all() and (free <= hi).all():
-        x[live] = free / scale
-        return x
-    guess = _at_violated_bounds(g, zs, free, lo, hi)
+    guess = _at_violated_bounds(g, zs, np.linalg.solve(g, zs), lo, hi)
     if guess is not None:
         x[live] = guess / scale
         return x
@@ -63,13 +59,16 @@ def _solve(gram: np.ndarray, rhs: np.ndarray, lower, upper) -> np.ndarray:
 
 def _at_violated_bounds(g, z, free, lo, hi):
     """The bounded optimum of ``x'gx - 2 z'x`` if it holds the coefficients whose
-    unconstrained optimum ``free`` crosses a bound at that bound, else None: the others solved
-    with those fixed, accepted where the optimality conditions hold (the others within their
-    bounds, and the gradient pushing each fixed one outwards). A convex problem's optimum is
-    the point where they hold, and one coefficient at 0 is the usual case: bounded-variable
-    least squares, ten times dearer, is left for the rest."""
+    unconstrained optimum ``free`` crosses a bound at that bound, else None: ``free`` itself
+    when none crosses; else the others solved with those fixed, accepted where the optimality
+    conditions hold (the others within their bounds, and the gradient pushing each fixed one
+    outwards). A convex problem's optimum is the point where they hold, and one coefficient
+    at 0 is the usual case: bounded-variable least squares, ten times dearer, is left for the
+    rest."""
     at_lo, at_hi = free < lo, free > hi
     fixed = at_lo | at_hi
+    if not fixed.any():
+        return free
     x = np.where(at_lo, lo, np.where(at_hi, hi, 0.0))
     rest = ~fixed
     if rest.any():
@@ -221,7 +220,13 @@ def _linear_fit(d: Design, chosen: list[Candidate]) -> Fit:
     weight is the noise's variance over the prior's, so a fit that explains more (a found
     effect) leans less on it, as its residuals say it may."""
     first = _linear_fit_at(d, chosen, d.noise_var)
-    return _linear_fit_at(d, chosen, max(first.rmse_W**2 * first.tau, 1e-12))
+    return _linear_fit_at(d, chosen, noise_var_W2(first.rmse_W**2, first.tau))
+
+
+def noise_var_W2(mean_square_W2: float, tau: float) -> float:
+    """The noise a prior is weighed at: a residual's mean square times its autocorrelation
+    time, kept above 0 for a perfect fit [W^2]."""
+    return max(mean_square_W2 * tau, 1e-12)
 
 
 def _linear_fit_at(d: Design, chosen: list[Candidate], noise_var: float) -> Fit:
@@ -324,11 +329,11 @@ def _fit_rows(d: Design, x, lo, hi, rows, noise_var: float | None = None) -> np.
     def cost(theta):  # minus the log posterior, in units of the noise
         resid_ss = theta @ gram @ theta - 2 * rhs @ theta
         shape = d.settings.prior_dof + 1.0
-        z2 = (theta[:d.prior_mean.size] - d.prior_mean) ** 2 * d.prior_weight
-        return resid_ss / scale + shape * np.sum(np.log1p(z2 / shape))
+        return resid_ss / scale + shape * np.sum(np.log1p(d.prior_z2(theta) / shape))
 
-    modes = [settle(solve_at(d.ridge(k, scale))), settle(solve_at(d.ridge(k, 1.0)))]
-    return min(modes, key=cost)
+    # the two starts are one where the prior is already weighed at unit noise
+    starts = dict.fromkeys((scale, 1.0))
+    return min((settle(solve_at(d.ridge(k, s))) for s in starts), key=cost)
 
 
 def _covariance(jac: np.ndarray) -> np.ndarray:
