@@ -27,6 +27,9 @@ def test_small_fleet_is_answered_in_full():
     assert r["samples_per_s"] == pytest.approx(40, rel=0.35)
     assert 0 < r["p50_ms"] <= r["p95_ms"] <= r["p99_ms"]
     assert len(r["repeats"]) == 1 and r["repeats"][0]["samples"] > 0
+    from test_json_docs import compare
+
+    compare("bench service", r)  # docs/json.md lists exactly these keys
 
 
 @pytest.mark.parametrize("flag", ["--robots", "--batch", "--repeats"])

@@ -191,15 +191,20 @@ def test_a_trips_efficiency_interval_says_whether_it_pins_the_efficiency():
     """The profile likelihood of the efficiency (every other coefficient refitted inside the
     model at each value): TripA01 pins it well below 1 (0.78 fitted); TripA16, whose heater
     runs unmodelled, cannot tell its 0.97 from plausible efficiencies, and its interval says
-    so by reaching both 1 and under 0.8."""
+    so by reaching both 1 and under 0.8. The car's own torque signal says the same of both:
+    TripA01's motor takes back well under all of the fitted braking power, TripA16's nearly all
+    (the fitted efficiency is what the car delivered, not an artefact of the fit)."""
     from orange_plan.bench.diagnose_real import bmw_regen
 
     root = Path(__file__).resolve().parents[1]
     (a01,) = bmw_regen(DATA, root / "scenarios" / "bmw_i3.toml", "tum_bmw_i3/TripA01.csv.gz")
     assert a01.efficiency_low <= a01.regen_efficiency <= a01.efficiency_high < 0.95
     assert a01.efficiency_low > 0.5
+    assert a01.torque_efficiency == pytest.approx(a01.regen_efficiency, abs=0.05)
     (a16,) = bmw_regen(DATA, root / "scenarios" / "bmw_i3.toml", "tum_bmw_i3/TripA16.csv.gz")
     assert a16.efficiency_high == 1.0 and a16.efficiency_low < 0.8
+    assert a16.torque_efficiency > 0.9
+    assert a16.torque_efficiency == pytest.approx(a16.regen_efficiency, abs=0.07)
 
 
 def test_bench_real_without_trips_is_one_line_exit_2(tmp_path):
@@ -240,3 +245,29 @@ def test_a_drift_shape_without_the_drift_term_is_refused(tmp_path):
                     + '\n[model]\ndrift_shape = "linear"\n')
     with pytest.raises(InputError, match=r"needs 'drift' in model\.terms"):
         load_scenario(path)
+
+
+def test_torque_efficiency_is_the_motors_share_of_the_models_braking_power(monkeypatch):
+    """Hand-computed: speeds 10 m/s, model forces -100, -200, +50 N (braking powers -1000,
+    -2000 W and one driving sample left out), torques -2, -3 Nm: the motor's power is
+    torque x 10 x 9.665 / 0.35 = -552.3, -828.4 W, so 1380.7 / 3000 = 0.4602. Without a
+    torque column there is nothing to compare: NaN."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from orange_plan.bench import diagnose_real
+    from orange_plan.identify.diagnosis import fitting
+
+    state = SimpleNamespace(speed_mps=np.full(3, 10.0))
+    base = SimpleNamespace(traction_force_N=lambda s: np.array([-100.0, -200.0, 50.0]))
+    inside = SimpleNamespace(state=state, base=base)
+    monkeypatch.setattr(fitting, "absorb",
+                        lambda d, chosen, fit: SimpleNamespace(design=inside))
+    d = SimpleNamespace(columns_of=frozenset({"motor_torque_Nm"}),
+                        frame=pd.DataFrame({"motor_torque_Nm": [-2.0, -3.0, 5.0]}))
+    share = diagnose_real.torque_efficiency(d, [], None)
+    assert share == pytest.approx(5 * 10 * 9.665 / 0.35 / 3000, rel=1e-12)
+    assert share == pytest.approx(0.4602, abs=1e-4)
+    nothing = SimpleNamespace(columns_of=frozenset(), frame=None)
+    assert math.isnan(diagnose_real.torque_efficiency(nothing, [], None))

@@ -108,8 +108,6 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
     out["bench concealed"] = _json("bench", "concealed", "--seeds", "1", "--duration-s", "60",
                                    "--rate-hz", "1", "--only", "null-ground")
     out["bench online"] = _json("bench", "online", "--seeds", "1", "--only", "rusti_v1_box")
-    out["bench service"] = _json("bench", "service", "--seconds", "1", "--repeats", "1",
-                                 "--robots", "1", "--vertices", "100")
     sweep = write_sweep(d / "yard", grid={"battery.rated_energy_Wh": [10.0]}, seeds=1)
     out["sweep"] = _json("sweep", sweep, "-o", d / "sweep.parquet", "--workers", "1")
     out["export"] = _json("export", d / "plan.geojson", "--scenario", world, "-o",
@@ -121,7 +119,7 @@ def outputs(tmp_path_factory) -> dict[str, dict]:
 
 COMMANDS = ["range", "plan", "reach", "simulate", "convert", "predict", "calibrate", "diagnose",
             "export", "check", "bench check", "bench reach", "bench replan", "bench online", "bench diagnose",
-            "bench concealed", "bench service", "sweep"]
+            "bench concealed", "sweep"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -133,6 +131,7 @@ COVERED_ELSEWHERE = {
     "bench plan": "test_bench_plan.py::test_cli_quick_json_with_a_standin_planner",
     "bench mission": "test_bench_mission.py::test_quick_run_completes_with_every_column",
     "bench sweep": "test_sweep.py::test_bench_sweep_small_run_meets_its_own_bookkeeping",
+    "bench service": "test_bench_service.py::test_small_fleet_is_answered_in_full",
     "bench calibration": ("test_cli_simulate.py::"
                           "test_bench_calibration_reports_offline_and_online_on_real_runs"),
     "report paper": "test_report.py::test_reduced_report_is_complete_and_in_range",

@@ -42,7 +42,7 @@ def worlds(draw):
 
 
 @pytest.mark.timeout(240)
-@settings(max_examples=30, deadline=None,
+@settings(max_examples=20, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(spec=worlds(), seed=st.integers(0, 1000), probe=st.integers(0, 10_000))
 def test_tour_returns_home_with_non_negative_margins(tmp_path_factory, spec, seed, probe):

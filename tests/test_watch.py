@@ -359,7 +359,7 @@ def cli(*args) -> list[str]:
     return [sys.executable, "-m", "orange_plan.cli", *map(str, args)]
 
 
-def fly(tmp_path, *, watch_args=None, name="flight", speedup=20):
+def fly(tmp_path, *, watch_args=None, name="flight", speedup=40):
     """fake-vehicle (accelerated, truth 30 % heavier) and, if given, watch on loopback."""
     route, truth = lawnmower_csv(tmp_path / "lanes.csv"), tmp_path / "heavy.toml"
     truth.write_text(HEAVY)

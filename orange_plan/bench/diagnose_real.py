@@ -12,6 +12,13 @@ at each efficiency, inside the model) read as a 95 % interval, the efficiencies 
 deviance ``n_eff ln(RSS(eff) / RSS_min)`` (``n_eff`` the samples over the residual's
 autocorrelation time) is under ``CHI2_95``. An interval that reaches 1 says the trip cannot
 tell a plausible efficiency from a lossless one.
+
+And what the car itself says, where the trip has the drive's torque signal
+(``motor_torque_Nm``): ``torque_efficiency``, the motor's power on the braking samples
+(torque times the motor's speed, ``v * I3_GEAR_RATIO / I3_WHEEL_RADIUS_M``) over the negative
+traction power of the fitted model (inertia and regeneration inside it) on the same samples.
+It is an estimate of the same efficiency that does not come from regressing the battery's
+power, so it tells a fitted efficiency near 1 that the car delivered from one the fit made up.
 """
 
 from __future__ import annotations
@@ -33,6 +40,10 @@ EFFICIENCY_GRID = np.round(np.arange(0.05, 1.0001, 0.025), 3)
 CHI2_95 = 3.84
 """95 % quantile of chi-square with one degree of freedom: the deviance bound of the
 efficiency's interval [-]."""
+I3_GEAR_RATIO = 9.665
+"""BMW i3 single-speed reduction, motor to wheel (technical data) [-]."""
+I3_WHEEL_RADIUS_M = 0.35
+"""BMW i3 155/70 R19 tyre: 241 mm rim radius + 0.7 x 155 mm sidewall [m]."""
 PROFILE_ROUNDS = 3
 """Gauss-Newton rounds of each fixed-efficiency refit (the clip moves with the force) [-]."""
 
@@ -54,6 +65,7 @@ class RegenRow:
     efficiency_low: float
     efficiency_high: float
     braking_share: float
+    torque_efficiency: float
     seconds: float
 
     def to_dict(self) -> dict:
@@ -101,8 +113,26 @@ def bmw_regen(data_dir: str | Path, scenario_path: str | Path,
             regen_gain_pct=100.0 * (1.0 - both.cv_rmse_W / alone.cv_rmse_W),
             regen_t=max((t.t_max for t in result.trials if t.id == "regen"), default=0.0),
             efficiency_low=low, efficiency_high=high,
-            braking_share=float(np.mean(d.y < 0)), seconds=seconds))
+            braking_share=float(np.mean(d.y < 0)),
+            torque_efficiency=torque_efficiency(d, [*inertia, pool["regen"]], both),
+            seconds=seconds))
     return rows
+
+
+def torque_efficiency(d, chosen: list, fit) -> float:
+    """The motor's power over the fitted model's negative traction power, summed over the
+    samples where that power is negative (module docstring); NaN without a torque signal [-]."""
+    from orange_plan.identify.diagnosis.fitting import absorb
+
+    if "motor_torque_Nm" not in d.columns_of:
+        return float("nan")
+    inside = absorb(d, chosen, fit).design
+    speed = np.asarray(inside.state.speed_mps, float)
+    traction_W = np.asarray(inside.base.traction_force_N(inside.state), float) * speed
+    motor_W = d.frame["motor_torque_Nm"].to_numpy(float) * speed * I3_GEAR_RATIO \
+        / I3_WHEEL_RADIUS_M
+    braking = traction_W < 0
+    return float(np.sum(motor_W[braking]) / np.sum(traction_W[braking]))
 
 
 def efficiency_interval(d, chosen: list, regen, fit) -> tuple[float, float]:

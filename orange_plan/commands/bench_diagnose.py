@@ -84,7 +84,8 @@ def _real_trips(data_dir: Path, as_json: bool) -> None:
         return
     table = Table(title="BMW i3 trips, scenario without inertia and regen", header_style="bold")
     for col in ("trip", "found", "regen t", "regen efficiency", "95 % interval",
-                "braking samples", "held-out RMSE [W] inertia / + regen", "gain", "seconds"):
+                "braking samples", "held-out RMSE [W] inertia / + regen", "gain",
+                "torque signal's efficiency", "seconds"):
         table.add_column(col)
     for r in rows:
         table.add_row(r.trip, ",".join(r.found) or "-", f"{r.regen_t:.1f}",
@@ -92,7 +93,8 @@ def _real_trips(data_dir: Path, as_json: bool) -> None:
                       f"{r.efficiency_low:.2f}-{r.efficiency_high:.2f}",
                       f"{100 * r.braking_share:.0f} %",
                       f"{r.inertia_holdout_rmse_W:.0f} / {r.inertia_regen_holdout_rmse_W:.0f}",
-                      f"{r.regen_gain_pct:.1f} %", f"{r.seconds:.1f}")
+                      f"{r.regen_gain_pct:.1f} %", f"{r.torque_efficiency:.2f}",
+                      f"{r.seconds:.1f}")
     out.print(table)
 
 

@@ -183,7 +183,7 @@ def _fit_with_regen(d: Design, chosen: list[Candidate]) -> Fit:
     key = ("regen_inside", tuple(c.id for c in chosen[:at]))
     if key not in d.cache:
         first = chosen[:at]
-        d.cache[key] = _absorb(d, first, _linear_fit(d, first), d.settings.regen_rounds)
+        d.cache[key] = absorb(d, first, _linear_fit(d, first), d.settings.regen_rounds)
     absorbed = d.cache[key]
     fit = _linear_fit(absorbed.design, [*absorbed.others, *chosen[at:]])
     return replace(fit, names=absorbed.prefixed(fit.names))
@@ -359,7 +359,7 @@ def _fit_of(d: Design, chosen: list[Candidate]) -> Fit:
 
 @dataclass(frozen=True)
 class Absorbed:
-    """Chosen candidates with the terms among them put inside the model (``_absorb``).
+    """Chosen candidates with the terms among them put inside the model (``absorb``).
 
     Attributes
     ----------
@@ -392,11 +392,11 @@ def polish(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Fit
     (a noise-free case came out 24 % low); a surface the recording never drove on keeps the
     default coefficient. Names keep the ``<candidate>.`` prefix of ``fit_design`` (per-surface
     rolling as ``surface_rolling.rolling_kg_<surface>``, no longer a change)."""
-    absorbed = _absorb(d, chosen, fit, rounds)
+    absorbed = absorb(d, chosen, fit, rounds)
     return replace(absorbed.fit, names=absorbed.prefixed(absorbed.fit.names))
 
 
-def _absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Absorbed:
+def absorb(d: Design, chosen: list[Candidate], fit: Fit, rounds: int = 3) -> Absorbed:
     """``polish``'s Gauss-Newton (``Absorbed``). With no term among ``chosen``: ``d``,
     ``chosen`` and ``fit`` as they are, no owner."""
     # hover stays a candidate: its column is zero on landed samples, its term is not
@@ -453,13 +453,13 @@ def _start_value(values: dict, owner: str, name: str) -> float:
 def efficiency_profile(d: Design, chosen: list[Candidate], regen: Candidate, fit: Fit,
                        grid, rounds: int = 3) -> np.ndarray:
     """The deviance of each regeneration efficiency of ``grid``: ``chosen`` and ``regen``
-    inside the model (``_absorb``, from ``fit``, their joint fit), every other coefficient
+    inside the model (``absorb``, from ``fit``, their joint fit), every other coefficient
     refitted with the efficiency held (``rounds`` Gauss-Newton rounds: the clip moves with the
     force), ``n_eff ln(RSS(eff) / RSS_min)`` with ``n_eff = n / tau`` of ``fit``. Where it
     stays under a chi-square quantile (3.84: 95 %) is what the recording allows; a profile
     flat up to the bound of 1 says it cannot tell a plausible efficiency from a lossless
     one [-]."""
-    inside = _absorb(d, [*chosen, regen], fit).design
+    inside = absorb(d, [*chosen, regen], fit).design
     at = inside.base.names.index("regen_efficiency")
     rss = []
     for eff in np.asarray(grid, float):

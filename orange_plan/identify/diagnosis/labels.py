@@ -168,7 +168,7 @@ def labelled_design(d: Design) -> Design:
     label's (delayed and taken over the majority window that ``label_lag`` chose on the whole
     run; the reference label -1, the default ground), and the map carries one surface per own
     label (no polygon: the codes come from the labels), so that per-label rolling joins the
-    model as the ``surface_rolling`` term and is refitted inside it (``_absorb``): a label
+    model as the ``surface_rolling`` term and is refitted inside it (``absorb``): a label
     that rolls harder draws power on gentle downhills the baseline's clip called coasting."""
     from shapely.geometry import Polygon
 

@@ -148,7 +148,7 @@ def _physical_params(d: Design, fit: Fit, cand: Candidate, params: dict, stderr:
 
 
 def _label_params(d: Design, fit: Fit, params: dict, stderr: dict):
-    """Per-label rolling as ``rolling_kg_<label>`` [kg] from the polished fit (``_absorb``:
+    """Per-label rolling as ``rolling_kg_<label>`` [kg] from the polished fit (``absorb``:
     the labels as the model's surfaces), the reference label's being ``rolling_kg``; the
     labels' delay ``label_lag_s`` [s] as ``label_lag`` found it on the whole run."""
     labels = surface_labels(d)

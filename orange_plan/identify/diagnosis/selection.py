@@ -13,9 +13,9 @@ import numpy as np
 from orange_plan.identify.diagnosis.design import Candidate, Design
 from orange_plan.identify.diagnosis.fitting import (
     Fit,
-    _absorb,
     _fit_of,
     _reference,
+    absorb,
     fit_design,
 )
 from orange_plan.identify.diagnosis.settings import DiagnosisSettings
@@ -158,7 +158,7 @@ def _round_choice(d: Design, scored: list[Scored], current: Fit) -> Scored | Non
 
 def _confirm(d: Design, chosen: list[Candidate], fit: Fit, stand_ins=()):
     """Judge each chosen candidate again, added last to the *others inside the model*
-    (``_absorb``): later rounds judged candidates against the earlier finds' columns built
+    (``absorb``): later rounds judged candidates against the earlier finds' columns built
     at the baseline's clip, and what that linearisation misses (regen's braking samples)
     looked like a new effect (an in-battery loss at +3.9 % held out, +2.0 % once regen was
     inside). A candidate that no longer passes is dropped; one chosen in a passing
@@ -169,7 +169,7 @@ def _confirm(d: Design, chosen: list[Candidate], fit: Fit, stand_ins=()):
     kept = list(chosen)
     for cand in list(chosen):
         rest = [c for c in kept if c is not cand]
-        absorbed = _absorb(d, rest, _fit_of(d, rest))
+        absorbed = absorb(d, rest, _fit_of(d, rest))
         without = fit_design(absorbed.design, absorbed.others)
         with_it = fit_design(absorbed.design, [*absorbed.others, cand])
         trial = judge(d, [cand], with_it, without)
