@@ -10,7 +10,6 @@ Cell counts are compared with exact areas within the band a lattice count can mi
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -383,21 +382,25 @@ def big_world(n_obstacles=300, seed=1) -> World:
     return World(m, 0.03, "default", (1.0, 1.0))
 
 
-def test_large_map_is_fast_and_correct():
+def test_large_map_grid_candidates_and_sensing_are_correct():
+    """A 2 km map with 300 boxes: every lane candidate is free, the grid stays within its cell
+    budget, and the cells a 500-segment tour senses are exactly those within the radius
+    (checked on every returned cell and on a sample of the others). How long it takes is a
+    benchmark's business, not a test's."""
     world = big_world()
-    t0 = time.perf_counter()
     grid = coverage_grid(world, 5.0)
     c = coverage_candidates(world, grid, 5.0)
-    elapsed = time.perf_counter() - t0
     lane = c.kind == "lane"
     assert world.segments_free(c.start_xy_m[lane], c.end_xy_m[lane]).all()
     assert grid.n_cells <= 400_000
-    # Measured ~1 s on a loaded 2-core machine; the bound only catches an order-of-magnitude loss.
-    assert elapsed < 6.0
-    t0 = time.perf_counter()
     tour = np.random.default_rng(0).uniform(0, 2000, (500, 2))  # ~ 500 km of path
-    grid.cells_near(tour, 5.0)
-    assert time.perf_counter() - t0 < 3.0
+    near = grid.cells_near(tour, 5.0)
+    line = shapely.LineString(tour)
+    distance = shapely.distance(line, shapely.points(grid.xy_m[near]))
+    assert near.size > 1000 and np.all(distance <= 5.0 + 1e-9)
+    others = np.setdiff1d(np.arange(grid.n_cells), near)
+    sample = np.random.default_rng(1).choice(others, 20_000, replace=False)
+    assert np.all(shapely.distance(line, shapely.points(grid.xy_m[sample])) > 5.0 - 1e-9)
 
 
 def test_angle_is_taken_modulo_180(tmp_path):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import struct
-import time
 from pathlib import Path
 
 import numpy as np
@@ -216,9 +215,18 @@ def test_draw_map_flat_dem_and_legend_entries():
     assert labels[:2] == ["elsewhere: the robot's crr", "grass, crr 0.08/0.1"]
 
 
-def test_fast_on_big_map_with_many_vertices(tmp_path):
-    """5000 tour vertices over a 2 km map with a DEM, obstacles and surfaces draw without an
-    order-of-magnitude loss of speed."""
+def artist_count(fig) -> int:
+    """Every artist drawn on the figure's axes (lines, collections, patches, texts...)."""
+    return sum(len(ax.get_children()) for ax in fig.get_axes())
+
+
+def test_big_map_draws_with_as_many_artists_for_5000_vertices_as_for_500(tmp_path):
+    """A 2 km map with a DEM, obstacles and surfaces draws; the tour is drawn as whole
+    collections, never one artist per vertex: the same plan resampled from 500 to 5000 vertices
+    (the same 200 waypoints) adds no artist. (How long drawing takes is a benchmark's
+    business, not a test's.)"""
+    import matplotlib.pyplot as plt
+
     n = 401
     g = np.linspace(-5.0, 2005.0, n)
     gx, gy = np.meshgrid(g, g)
@@ -229,20 +237,20 @@ def test_fast_on_big_map_with_many_vertices(tmp_path):
                        surfaces=[Surface("gravel", 0.05, box(0, 0, 800, 2000)),
                                  Surface("grass", 0.09, box(1300, 200, 2000, 1600))],
                        no_go=[box(1700, 1700, 1950, 1950)])
-    xy = lawnmower(world, box(0, 0, 2000, 2000), 100.0, 10.0)
-    assert len(xy) > 3000
-    idx = np.linspace(0, len(xy) - 1, 5000)
-    xy = np.stack([np.interp(idx, np.arange(len(xy)), xy[:, k]) for k in (0, 1)], axis=1)
-    plan = synthetic_plan(world, xy, 20.0, n_waypoints=200)
-    # CPU time of this process: the suite runs in parallel workers on shared machines, where
-    # wall time measures the neighbours. (Drawing is single-threaded: CPU ~ wall when idle.)
-    t0 = time.process_time()
+    lanes = lawnmower(world, box(0, 0, 2000, 2000), 100.0, 10.0)
+    assert len(lanes) > 3000
+    counts = []
+    for n_vertices in (500, 5000):
+        idx = np.linspace(0, len(lanes) - 1, n_vertices)
+        xy = np.stack([np.interp(idx, np.arange(len(lanes)), lanes[:, k]) for k in (0, 1)],
+                      axis=1)
+        plan = synthetic_plan(world, xy, 20.0, n_waypoints=200)
+        fig = plan_plot.plan_figure(world, plan, f"2 km map, {n_vertices} vertices")
+        counts.append(artist_count(fig))
+        plt.close(fig)
+    assert counts[0] == counts[1]
     plot_plan(world, plan, tmp_path / "big.png", "2 km map, 5000 vertices")
-    elapsed = time.process_time() - t0
     png_size(tmp_path / "big.png")
-    # Measured 1-4 s of CPU on 2-core machines of different speeds; the bound only catches an
-    # order-of-magnitude loss (a per-vertex draw call), not a machine's speed.
-    assert elapsed < 20.0, f"plot_plan took {elapsed:.2f} s of CPU"
 
 
 def test_start_away_from_home_sparse_summary_and_single_vertex(campus, tmp_path):
