@@ -201,6 +201,9 @@ def test_a_trips_efficiency_interval_says_whether_it_pins_the_efficiency():
     assert a01.efficiency_low <= a01.regen_efficiency <= a01.efficiency_high < 0.95
     assert a01.efficiency_low > 0.5
     assert a01.torque_efficiency == pytest.approx(a01.regen_efficiency, abs=0.05)
+    from test_json_docs import compare
+
+    compare("bench diagnose --real", {"rows": [a01.to_dict()]})  # docs/json.md's keys
     (a16,) = bmw_regen(DATA, root / "scenarios" / "bmw_i3.toml", "tum_bmw_i3/TripA16.csv.gz")
     assert a16.efficiency_high == 1.0 and a16.efficiency_low < 0.8
     assert a16.torque_efficiency > 0.9
